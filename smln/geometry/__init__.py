@@ -1,0 +1,1 @@
+"""smln.geometry"""
