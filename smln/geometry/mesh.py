@@ -1,0 +1,181 @@
+"""Triangle-mesh helpers: normals, areas, edges and edge-adjacent face pairs.
+
+All functions are vectorised torch code (no Python loops over faces or edges) and differentiable in the
+positions ``x``. Positions may carry leading batch dimensions: ``x`` is ``(..., V, 3)``, float, meters;
+``faces`` is ``(F, 3)`` int64 and shared by the batch.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+_EPS = 1e-12
+
+
+def _face_cross(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Unnormalised face normals (x1 - x0) x (x2 - x0); norm = 2 * area. Shape (..., F, 3)."""
+    x0 = x[..., faces[:, 0], :]
+    x1 = x[..., faces[:, 1], :]
+    x2 = x[..., faces[:, 2], :]
+    return torch.linalg.cross(x1 - x0, x2 - x0, dim=-1)
+
+
+def _normalize(v: torch.Tensor) -> torch.Tensor:
+    """Unit vectors along the last axis; zero vectors stay (almost) zero instead of becoming NaN."""
+    return v / torch.sqrt((v * v).sum(-1, keepdim=True) + _EPS)
+
+
+def face_normals(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Unit face normals, right-handed in the face's vertex order.
+
+    Args:
+        x: (..., V, 3) vertex positions, meters.
+        faces: (F, 3) int64 vertex indices.
+
+    Returns:
+        (..., F, 3) unit normals (degenerate faces give ~0 vectors, never NaN).
+    """
+    return _normalize(_face_cross(x, faces))
+
+
+def face_areas(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Triangle areas.
+
+    Args:
+        x: (..., V, 3) vertex positions, meters.
+        faces: (F, 3) int64.
+
+    Returns:
+        (..., F) areas, m^2.
+    """
+    c = _face_cross(x, faces)
+    return 0.5 * torch.sqrt((c * c).sum(-1) + _EPS)
+
+
+def vertex_normals(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals (sum of the adjacent faces' area-scaled normals, normalised).
+
+    Args:
+        x: (..., V, 3) vertex positions, meters.
+        faces: (F, 3) int64.
+
+    Returns:
+        (..., V, 3) unit normals; isolated vertices get ~0 vectors.
+    """
+    c = _face_cross(x, faces)  # (..., F, 3), |c| = 2 area: area weighting for free
+    acc = torch.zeros_like(x)
+    dim = x.dim() - 2
+    for k in range(3):  # three corners, not a loop over faces
+        acc = acc.index_add(dim, faces[:, k], c)
+    return _normalize(acc)
+
+
+def unique_edges(faces: torch.Tensor) -> torch.Tensor:
+    """Undirected edges of a triangle mesh.
+
+    Args:
+        faces: (F, 3) int64.
+
+    Returns:
+        (E, 2) int64, each row sorted (i < j), rows sorted lexicographically, no duplicates.
+    """
+    e = torch.cat([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], dim=0)
+    e = torch.sort(e, dim=1).values
+    return torch.unique(e, dim=0)
+
+
+class InteriorEdges(NamedTuple):
+    """Edges shared by exactly two faces (the hinges of dihedral bending).
+
+    Attributes:
+        edges: (E, 2) int64 hinge vertices (a, b), in the order they appear in ``faces[face_pairs[:, 0]]``.
+        opposite: (E, 2) int64, the vertex of each of the two faces that is not on the hinge (c1, c2).
+        face_pairs: (E, 2) int64 indices of the two faces.
+    """
+
+    edges: torch.Tensor
+    opposite: torch.Tensor
+    face_pairs: torch.Tensor
+
+
+def interior_edges(faces: torch.Tensor) -> InteriorEdges:
+    """Find every edge shared by exactly two faces, with the two opposite vertices.
+
+    Boundary edges (one face) and non-manifold edges (three or more faces) are left out.
+
+    Args:
+        faces: (F, 3) int64.
+
+    Returns:
+        :class:`InteriorEdges` with E rows.
+    """
+    faces = faces.long()
+    nf = faces.shape[0]
+    a = torch.cat([faces[:, 0], faces[:, 1], faces[:, 2]])
+    b = torch.cat([faces[:, 1], faces[:, 2], faces[:, 0]])
+    c = torch.cat([faces[:, 2], faces[:, 0], faces[:, 1]])
+    fid = torch.arange(nf, device=faces.device).repeat(3)
+    n = int(faces.max().item()) + 1 if nf else 0
+    key = torch.minimum(a, b) * n + torch.maximum(a, b)
+    key, order = torch.sort(key, stable=True)
+    m = key.shape[0]
+    if m < 2:
+        empty = torch.zeros((0, 2), dtype=torch.long, device=faces.device)
+        return InteriorEdges(empty, empty.clone(), empty.clone())
+    same_next = key[:-1] == key[1:]  # (m-1,)
+    first = torch.zeros(m, dtype=torch.bool, device=faces.device)
+    first[:-1] = same_next
+    # exactly two: key[i] == key[i+1], key[i-1] != key[i], key[i+2] != key[i]
+    prev_diff = torch.ones(m, dtype=torch.bool, device=faces.device)
+    prev_diff[1:] = ~same_next
+    next2_diff = torch.ones(m, dtype=torch.bool, device=faces.device)
+    next2_diff[:-2] = key[:-2] != key[2:]
+    i = torch.nonzero(first & prev_diff & next2_diff).squeeze(1)
+    h1, h2 = order[i], order[i + 1]
+    return InteriorEdges(
+        edges=torch.stack([a[h1], b[h1]], dim=1),
+        opposite=torch.stack([c[h1], c[h2]], dim=1),
+        face_pairs=torch.stack([fid[h1], fid[h2]], dim=1),
+    )
+
+
+def hinge_normals(
+    x: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Unnormalised normals of the two faces of each hinge, oriented consistently from the 4 vertices alone.
+
+    n1 = (x_b - x_a) x (x_c1 - x_a), n2 = (x_c2 - x_a) x (x_b - x_a): for a flat hinge (c1, c2 on opposite
+    sides of the edge) n1 and n2 point the same way, whatever the faces' winding in the mesh.
+
+    Args:
+        x: (..., V, 3) positions.
+        edges: (E, 2) hinge vertices (a, b); opposite: (E, 2) opposite vertices (c1, c2).
+
+    Returns:
+        n1, n2: (..., E, 3) unnormalised (norm = 2 * face area); e: (..., E, 3) edge vector x_b - x_a.
+    """
+    xa = x[..., edges[:, 0], :]
+    e = x[..., edges[:, 1], :] - xa
+    n1 = torch.linalg.cross(e, x[..., opposite[:, 0], :] - xa, dim=-1)
+    n2 = torch.linalg.cross(x[..., opposite[:, 1], :] - xa, e, dim=-1)
+    return n1, n2, e
+
+
+def dihedral_angles(x: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor) -> torch.Tensor:
+    """Signed bending angle of each hinge (0 = flat), radians in (-pi, pi].
+
+    theta = atan2((n1 x n2) . e_hat, n1 . n2) with the hinge normals of :func:`hinge_normals`.
+
+    Args:
+        x: (..., V, 3) positions; edges, opposite: (E, 2) int64 from :func:`interior_edges`.
+
+    Returns:
+        (..., E) angles.
+    """
+    n1, n2, e = hinge_normals(x, edges, opposite)
+    n1, n2, e = _normalize(n1), _normalize(n2), _normalize(e)
+    sin = (torch.linalg.cross(n1, n2, dim=-1) * e).sum(-1)
+    cos = (n1 * n2).sum(-1)
+    return torch.atan2(sin, cos)
