@@ -1,0 +1,170 @@
+"""Reading BVH motion clips (parsed with the ``pybvh`` package) into validated numpy arrays.
+
+Every failure is a :class:`MotionError` with a one-line message that names the file and what is wrong, never a
+traceback from inside the parser.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CMU_UNIT = 0.056444
+"""Meters per CMU BVH unit ((1/0.45) inch, see smln/data/motions/README.md)."""
+
+MAX_BVH_BYTES = 64 * 1024 * 1024
+MAX_BVH_FRAMES = 120 * 60 * 10
+"""Limits for user files: 64 MB and ten minutes at 120 fps."""
+
+
+class MotionError(ValueError):
+    """A motion clip that cannot be used, with a message meant for the user."""
+
+
+@dataclass
+class BvhClip:
+    """A parsed BVH clip, in the file's own axes and in meters.
+
+    Attributes:
+        name: clip name (file stem).
+        joint_names: J joint names, parents before children.
+        parents: J parent indices (-1 for the root).
+        offsets: (J, 3) float64 joint offsets from the parent, meters.
+        end_offsets: (J, 3) float64 end-site offset of each joint (zeros where it has none), meters.
+        local_rotations: (F, J, 3, 3) float64 local joint rotations per frame.
+        root_positions: (F, 3) float64 root positions, meters.
+        fps: frames per second of the file.
+    """
+
+    name: str
+    joint_names: list[str]
+    parents: list[int]
+    offsets: np.ndarray
+    end_offsets: np.ndarray
+    local_rotations: np.ndarray
+    root_positions: np.ndarray
+    fps: float
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.local_rotations.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Seconds covered by the frames (first to last sample)."""
+        return (self.num_frames - 1) / self.fps
+
+    def world_rotations(self) -> np.ndarray:
+        """(F, J, 3, 3) world rotations of each joint (product of local rotations down the chain)."""
+        world = np.empty_like(self.local_rotations)
+        for j, p in enumerate(self.parents):
+            world[:, j] = self.local_rotations[:, j] if p < 0 else world[:, p] @ self.local_rotations[:, j]
+        return world
+
+    def joint_positions(self, world: np.ndarray | None = None) -> np.ndarray:
+        """(F, J, 3) world joint positions in meters (BVH forward kinematics)."""
+        world = self.world_rotations() if world is None else world
+        pos = np.empty(world.shape[:2] + (3,))
+        for j, p in enumerate(self.parents):
+            pos[:, j] = self.root_positions if p < 0 else pos[:, p] + world[:, p] @ self.offsets[j]
+        return pos
+
+
+def _drop_reference_frame(rotations: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop frame 0 when it is a converter's reference pose (a jump far larger than any later frame-to-frame step)."""
+    if rotations.shape[0] < 3:
+        return rotations, root
+    def step(a: np.ndarray, b: np.ndarray) -> float:
+        rel = np.einsum("jik,jil->jkl", a, b)  # a^T b per joint
+        cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+        return float(np.degrees(np.arccos(cos)).max())
+    first = step(rotations[0], rotations[1])
+    later = max(step(rotations[i], rotations[i + 1]) for i in range(1, min(6, rotations.shape[0] - 1)))
+    if first > 15.0 and first > 5.0 * max(later, 1.0):
+        return rotations[1:], root[1:]
+    return rotations, root
+
+
+def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH_FRAMES) -> BvhClip:
+    """Parse and validate a BVH file.
+
+    Args:
+        path: the .bvh file.
+        unit: meters per file unit (CMU: 0.056444).
+        max_frames: refuse longer files.
+
+    Raises:
+        MotionError: missing, empty, too large, not BVH, truncated, non-finite values, absurd frame counts.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MotionError(f"{path.name}: no such file")
+    size = path.stat().st_size
+    if size == 0:
+        raise MotionError(f"{path.name}: the file is empty")
+    if size > MAX_BVH_BYTES:
+        limit = MAX_BVH_BYTES // 2**20
+        raise MotionError(f"{path.name}: {size / 1e6:.0f} MB is over the {limit} MB limit for BVH files")
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+    if b"\x00" in head or not head.lstrip().upper().startswith(b"HIERARCHY"):
+        raise MotionError(f"{path.name}: not a BVH file (it must start with HIERARCHY)")
+    declared = _declared_frames(path)
+    if declared is not None and declared > max_frames:
+        raise MotionError(f"{path.name}: {declared} frames is over the limit of {max_frames}")
+
+    import pybvh
+
+    try:
+        bvh = pybvh.read_bvh_file(str(path))
+        root, local = bvh.to_rotmat()
+    except Exception as exc:  # the parser's own messages are precise but long: keep the first line
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise MotionError(f"{path.name}: cannot parse BVH ({first[:200]})") from None
+
+    names = list(bvh.joint_names)
+    by_name = {n.name: n for n in bvh.nodes}
+    nodes = [by_name[n] for n in names]
+    parents = [names.index(n.parent.name) if n.parent is not None else -1 for n in nodes]
+    offsets = np.array([n.offset for n in nodes], dtype=np.float64) * unit
+    end_offsets = np.zeros_like(offsets)
+    for j, node in enumerate(nodes):
+        ends = [c for c in node.children if c.is_end_site]
+        if ends:
+            end_offsets[j] = np.asarray(ends[0].offset, dtype=np.float64) * unit
+
+    if local.shape[0] == 0:
+        raise MotionError(f"{path.name}: the file has no motion frames")
+    if declared is not None and local.shape[0] != declared:
+        raise MotionError(f"{path.name}: truncated: {local.shape[0]} frames of the {declared} declared")
+    if not (np.isfinite(local).all() and np.isfinite(root).all()):
+        raise MotionError(f"{path.name}: the motion contains NaN or infinite values")
+    fps = float(bvh.fps)
+    if not np.isfinite(fps) or fps <= 0 or fps > 1000:
+        raise MotionError(f"{path.name}: implausible frame rate {fps}")
+    local, root = _drop_reference_frame(local, root)
+    return BvhClip(
+        name=path.stem,
+        joint_names=names,
+        parents=parents,
+        offsets=offsets,
+        end_offsets=end_offsets,
+        local_rotations=local,
+        root_positions=root * unit,
+        fps=fps,
+    )
+
+
+def _declared_frames(path: Path) -> int | None:
+    """The ``Frames:`` count of the MOTION header, read without parsing the data."""
+    with open(path, "rb") as fh:
+        for raw in fh:
+            line = raw.strip()
+            if line.upper().startswith(b"FRAMES:"):
+                try:
+                    return int(line.split(b":", 1)[1])
+                except ValueError:
+                    raise MotionError(f"{path.name}: unreadable frame count {line[:40]!r}") from None
+    return None

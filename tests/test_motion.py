@@ -1,0 +1,126 @@
+"""Motion: every shipped clip loads and retargets; feet on the floor; joints follow the BVH; bad files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from smln.motion import MotionError, list_clips, load_bvh, load_motion, manifest, pose_sequence, retarget
+from smln.motion.library import clip_path
+from smln.motion.resample import sample_times, slerp_rotations
+from smln.motion.retarget import BVH_TO_BODY, posed_bone_ends
+
+
+def test_split_is_disjoint_and_about_seventy_thirty():
+    train, test = set(list_clips("train")), set(list_clips("test"))
+    assert not train & test and len(train) + len(test) == len(manifest())
+    assert 0.6 < len(train) / len(manifest()) < 0.8
+    kinds_test = {c["kind"] for c in manifest() if c["split"] == "test"}
+    kinds_train = {c["kind"] for c in manifest() if c["split"] == "train"}
+    assert kinds_test <= kinds_train  # every tested kind was also trained on
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list_clips())
+def test_every_clip_retargets_without_nan(name, body):
+    motion = load_motion(name, body)
+    assert motion.num_frames > 10 and motion.fps == 30
+    assert torch.isfinite(motion.world_orientations).all() and torch.isfinite(motion.root_positions).all()
+    seq = pose_sequence(body, motion)
+    assert torch.isfinite(seq.vertices).all()
+    # the duration survives 120 -> 30 fps resampling
+    clip = load_bvh(clip_path(name))
+    assert abs((seq.num_frames - 1) / 30 - clip.duration) < 1 / 30 + 1e-6
+
+
+def test_posed_body_stays_watertight(walk_sequence):
+    for f in (0, walk_sequence.num_frames // 2, walk_sequence.num_frames - 1):
+        mesh = trimesh.Trimesh(walk_sequence.vertices[f].numpy(), walk_sequence.faces.numpy(), process=False)
+        assert mesh.is_watertight and mesh.volume > 0.02
+
+
+def test_walk_keeps_feet_on_the_floor(walk_sequence):
+    """The floor is z = 0: the lowest body vertex is within 3 cm of it on at least 90 % of the frames."""
+    lowest = walk_sequence.vertices[..., 2].amin(dim=1)
+    assert (lowest.abs() < 0.03).float().mean() > 0.9
+    assert lowest.min() > -0.03
+
+
+def test_retargeted_joints_follow_the_bvh(body):
+    """Bone directions match the BVH's own forward kinematics; leg joints match its scaled positions."""
+    clip = load_bvh(clip_path("02_01_walk"))
+    motion = retarget(clip, body)
+    heads, tails = posed_bone_ends(body, motion)
+    rot, root = slerp_rotations(clip.local_rotations, clip.root_positions, clip.fps, 30)
+    clip30 = type(clip)(clip.name, clip.joint_names, clip.parents, clip.offsets, clip.end_offsets, rot, root, 30)
+    joints = clip30.joint_positions() @ BVH_TO_BODY.T
+    idx = {n: i for i, n in enumerate(clip.joint_names)}
+    for bone, child in (("LeftUpLeg", "LeftLeg"), ("LeftLeg", "LeftFoot"), ("RightLeg", "RightFoot"),
+                        ("LeftForeArm", "LeftHand"), ("RightArm", "RightForeArm")):
+        b = body.bone_index(bone)
+        d_body = torch.nn.functional.normalize(tails[:, b] - heads[:, b], dim=-1).numpy()
+        d_bvh = joints[:, idx[child]] - joints[:, idx[bone]]
+        d_bvh /= np.linalg.norm(d_bvh, axis=-1, keepdims=True)
+        angle = np.degrees(np.arccos(np.clip((d_body * d_bvh).sum(-1), -1, 1)))
+        assert angle.max() < 1.0, (bone, angle.max())
+    # knees and ankles relative to the mid-hip point, after scaling the subject to the body's leg length
+    mid_b = 0.5 * (heads[:, body.bone_index("LeftUpLeg")] + heads[:, body.bone_index("RightUpLeg")]).numpy()
+    mid_j = 0.5 * (joints[:, idx["LeftUpLeg"]] + joints[:, idx["RightUpLeg"]])
+    for name in ("LeftLeg", "LeftFoot", "RightLeg", "RightFoot"):
+        err = np.linalg.norm((heads[:, body.bone_index(name)].numpy() - mid_b)
+                             - motion.leg_scale * (joints[:, idx[name]] - mid_j), axis=-1)
+        assert err.mean() < 0.05, (name, err.mean())
+
+
+def test_resampling_keeps_duration_and_interpolates_rotations():
+    t = sample_times(121, 120, 30)
+    assert len(t) == 31 and t[-1] == 120
+    angles = np.linspace(0, np.pi / 2, 5)  # 5 frames at 4 fps: a quarter turn about Z
+    rots = np.stack([[[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]] for a in angles])[:, None]
+    out, _ = slerp_rotations(rots, np.zeros((5, 3)), 4, 8)
+    mid = np.arctan2(out[1, 0, 1, 0], out[1, 0, 0, 0])
+    assert abs(mid - np.pi / 16) < 1e-9  # halfway between 0 and pi/8, not an Euler lerp artefact
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (b"", "empty"),
+        (b"\x00\x01junk\xff" * 100, "not a BVH"),
+        (b"hello world\n", "not a BVH"),
+    ],
+)
+def test_bad_files_get_a_clear_error(tmp_path, content, message):
+    path = tmp_path / "bad.bvh"
+    path.write_bytes(content)
+    with pytest.raises(MotionError, match=message):
+        load_bvh(path)
+
+
+def test_truncated_bvh_is_refused(tmp_path):
+    text = clip_path("02_01_walk").read_text()
+    path = tmp_path / "trunc.bvh"
+    path.write_text(text[: len(text) // 2])
+    with pytest.raises(MotionError, match="bad.bvh|trunc"):
+        load_bvh(path)
+
+
+def test_unknown_skeleton_is_refused(tmp_path, body):
+    text = clip_path("02_01_walk").read_text()
+    for old in ("LeftUpLeg", "RightUpLeg"):
+        text = text.replace(f"JOINT {old}\n", f"JOINT Thigh{old[0]}\n")
+    path = tmp_path / "other_rig.bvh"
+    path.write_text(text)
+    with pytest.raises(MotionError, match="missing joints"):
+        retarget(load_bvh(path), body)
+
+
+def test_absurd_frame_count_is_refused(tmp_path):
+    text = clip_path("02_01_walk").read_text()
+    head, _, _ = text.partition("Frames:")
+    path = tmp_path / "huge.bvh"
+    path.write_text(head + "Frames: 999999999\nFrame Time: 0.008333\n0 0 0\n")
+    with pytest.raises(MotionError, match="over the limit"):
+        load_bvh(path)
