@@ -1,0 +1,230 @@
+"""Evaluation metrics of one frame and of a sequence (DESIGN.md "Metrics"; LayersNet/PBNS definitions).
+
+All quantities are computed in numpy on the CPU (no gradient). Percentages are in [0, 100].
+
+Per frame (:func:`frame_metrics`), with x the cloth at this frame and b the body:
+
+- ``h_coll`` (%): over all garment vertices i, nearest body vertex h (Euclidean) with its unit vertex normal
+  n_h; vertex i collides if (x_i - b_h) . n_h < 0. Fraction of colliding vertices.
+- ``l_coll`` (%, LayersNet): over the vertices of the outermost garment, nearest vertex j of the union of all
+  inner garments, with j's vertex normal (of its own layer's mesh); collision if (x_i - x_j) . n_j < 0.
+  0 for single-layer outfits.
+- ``l_coll_{k}_{k-1}`` (%): the same test for each adjacent pair, layer k's vertices against layer k-1 only
+  (LayersNet leaves middle layers untested; this covers them). For two layers it equals ``l_coll``.
+- ``bend`` (PBNS): mean over interior edges of 1 - cos(angle between the two adjacent face normals).
+- ``collision_loss`` (LayersNet ``collision_error`` with one neighbour): for each garment vertex with
+  signed body distance d (as in h_coll), nearest body vertex within ``LAYERSNET_RADIUS`` (1 cm) and
+  d >= -1 cm, v = min(d - 1 mm, 0); collision_loss = sum v^2 / #(v != 0) (mean over the vertices that violate
+  the 1 mm margin; 0 if none), m^2. LayersNet averages up to 4 ball-query neighbours per vertex before
+  squaring; we use the nearest vertex. ``layer_collision_loss``: the same between the outermost layer and
+  the union of the inner ones (LayersNet's garment-wise variant).
+- ``strain_mean`` / ``strain_max``: mean and max over unique edges of |l / l_rest - 1| (0.01 = 1 %).
+- ``nan``: 1.0 if any coordinate is not finite, else 0.0. ``exploded``: 1.0 if ``nan`` or strain_max > 1
+  (an edge doubled) or a vertex is more than 1 m from its nearest body vertex.
+
+Per-vertex masks for the viewer: ``body_penetration`` (V,) (the h_coll test) and ``layer_penetration`` (V,)
+(vertex of layer k >= 1 behind layer k-1, the per-pair test; False on layer 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from smln.geometry import build_tree, vertex_normals
+from smln.losses.rest import ClothRest
+
+LAYERSNET_MARGIN = 1e-3
+"""Collision-loss margin, meters (LayersNet ``thresh``)."""
+
+LAYERSNET_RADIUS = 1e-2
+"""Collision-loss neighbourhood and depth cut, meters (LayersNet ``radius``)."""
+
+EXPLODED_STRAIN = 1.0
+EXPLODED_DISTANCE = 1.0
+
+
+@dataclass
+class FrameMetrics:
+    """Metrics of one frame.
+
+    Attributes:
+        values: plain floats (see the module docstring for the keys).
+        body_penetration: (V,) bool, vertex behind its nearest body vertex.
+        layer_penetration: (V,) bool, vertex behind the layer directly beneath it.
+        body_index: (V,) int64 nearest body vertex of each cloth vertex (reusable, e.g. for the graph).
+    """
+
+    values: dict[str, float]
+    body_penetration: np.ndarray
+    layer_penetration: np.ndarray
+    body_index: np.ndarray
+
+
+def _np32(a: torch.Tensor | np.ndarray) -> np.ndarray:
+    if isinstance(a, torch.Tensor):
+        a = a.detach().cpu().numpy()
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _vertex_normals_np(x: np.ndarray, faces: torch.Tensor) -> np.ndarray:
+    return vertex_normals(torch.from_numpy(x), faces).numpy()
+
+
+def _layersnet_loss(d: np.ndarray, dist: np.ndarray) -> float:
+    v = np.minimum(d - LAYERSNET_MARGIN, 0.0)
+    v = np.where((d >= -LAYERSNET_RADIUS) & (dist < LAYERSNET_RADIUS), v, 0.0)
+    n = int(np.count_nonzero(v))
+    return float(np.dot(v, v) / n) if n else 0.0
+
+
+def _signed(x: np.ndarray, ref: np.ndarray, normals: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", x - ref[idx], normals[idx])
+
+
+def frame_metrics(
+    x: torch.Tensor | np.ndarray,
+    body: torch.Tensor | np.ndarray,
+    rest: ClothRest,
+    body_faces: torch.Tensor | np.ndarray | None = None,
+    body_normals: torch.Tensor | np.ndarray | None = None,
+    body_tree: cKDTree | None = None,
+    workers: int = 1,
+) -> FrameMetrics:
+    """All metrics of one frame (definitions in the module docstring).
+
+    Args:
+        x: (V, 3) cloth positions, meters (Cloth vertex order).
+        body: (Vb, 3) body vertices at the same frame, meters.
+        rest: :class:`~smln.losses.rest.ClothRest` (faces, edges, rest lengths, hinges, layer slices).
+        body_faces: (Fb, 3) int64, needed unless ``body_normals`` is given.
+        body_normals: (Vb, 3) unit outward body vertex normals at this frame (skips computing them).
+        body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k).
+        workers: threads for the KD-tree queries (scipy ``workers``).
+
+    Returns:
+        :class:`FrameMetrics`.
+    """
+    x = _np32(x)
+    b = _np32(body)
+    nv = x.shape[0]
+    nl = rest.num_layers
+    no = np.zeros(nv, dtype=bool)
+    if not np.isfinite(x).all():
+        keys = [
+            "h_coll",
+            "l_coll",
+            "bend",
+            "collision_loss",
+            "layer_collision_loss",
+            "strain_mean",
+            "strain_max",
+        ]
+        keys += [f"l_coll_{k}_{k - 1}" for k in range(1, nl)]
+        values = dict.fromkeys(keys, float("nan"))
+        values.update(nan=1.0, exploded=1.0)
+        return FrameMetrics(values, no, no.copy(), np.zeros(nv, dtype=np.int64))
+
+    # body: H-Coll and the LayersNet collision loss
+    if body_normals is None:
+        if body_faces is None:
+            raise ValueError("frame_metrics needs body_faces or body_normals")
+        bf = torch.as_tensor(np.asarray(body_faces), dtype=torch.long)
+        bn = _vertex_normals_np(b, bf)
+    else:
+        bn = _np32(body_normals)
+    tree = body_tree if body_tree is not None else build_tree(b)
+    bdist, bidx = tree.query(x, k=1, workers=workers)
+    d_body = _signed(x, b, bn, bidx)
+    body_pen = d_body < 0.0
+
+    values: dict[str, float] = {
+        "h_coll": 100.0 * float(body_pen.mean()),
+        "collision_loss": _layersnet_loss(d_body, bdist),
+    }
+
+    # layers: per adjacent pair, and outermost against the union of the inner layers
+    layer_pen = no.copy()
+    if nl > 1:
+        cn = _vertex_normals_np(x, rest.faces.cpu())
+        trees = [build_tree(x[s]) for s in rest.layer_slices[:-1]]
+        outer = rest.layer_slices[-1]
+        best_d = best_signed = np.zeros(0)
+        for k in range(1, nl):  # a loop over layers (2-3), not vertices
+            s_in, s_out = rest.layer_slices[k - 1], rest.layer_slices[k]
+            xo = x[s_out]
+            dist, idx = trees[k - 1].query(xo, k=1, workers=workers)
+            d = _signed(xo, x[s_in], cn[s_in], idx)
+            layer_pen[s_out] = d < 0.0
+            values[f"l_coll_{k}_{k - 1}"] = 100.0 * float((d < 0.0).mean())
+            if k == nl - 1:
+                best_d, best_signed = dist, d
+        xo = x[outer]
+        for k in range(nl - 2):  # outermost vs the other inner layers: the union's nearest is the closest
+            s_in = rest.layer_slices[k]
+            dist, idx = trees[k].query(xo, k=1, workers=workers)
+            closer = dist < best_d
+            best_d = np.where(closer, dist, best_d)
+            best_signed = np.where(closer, _signed(xo, x[s_in], cn[s_in], idx), best_signed)
+        values["l_coll"] = 100.0 * float((best_signed < 0.0).mean())
+        values["layer_collision_loss"] = _layersnet_loss(best_signed, best_d)
+    else:
+        values["l_coll"] = 0.0
+        values["layer_collision_loss"] = 0.0
+
+    # bend (PBNS): 1 - cos between adjacent face normals
+    f = rest.faces.cpu().numpy()
+    fn = np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True) + 1e-12
+    hf = rest.hinge_faces.cpu().numpy()
+    values["bend"] = float(1.0 - np.einsum("ij,ij->i", fn[hf[:, 0]], fn[hf[:, 1]]).mean()) if len(hf) else 0.0
+
+    # edge strain
+    e = rest.edges.cpu().numpy()
+    length = np.linalg.norm(x[e[:, 1]] - x[e[:, 0]], axis=1)
+    strain = np.abs(length / rest.rest_length.cpu().numpy() - 1.0)
+    values["strain_mean"] = float(strain.mean())
+    values["strain_max"] = float(strain.max())
+
+    exploded = values["strain_max"] > EXPLODED_STRAIN or float(bdist.max()) > EXPLODED_DISTANCE
+    values["nan"] = 0.0
+    values["exploded"] = float(exploded)
+    return FrameMetrics(values, body_pen, layer_pen, np.asarray(bidx, dtype=np.int64))
+
+
+MAX_KEYS = ("h_coll", "l_coll", "strain_max", "collision_loss", "layer_collision_loss", "nan", "exploded")
+"""Keys for which :func:`sequence_metrics` also reports the maximum over frames (``<key>_max``)."""
+
+
+def sequence_metrics(frames: Iterable[FrameMetrics | dict[str, float]]) -> dict[str, float]:
+    """Aggregate per-frame metrics over a sequence.
+
+    Every key is averaged over the frames where it is finite (``<key>``); keys in :data:`MAX_KEYS` also get
+    ``<key>_max`` over frames (for ``strain_max`` that is ``strain_max_max``). ``nan`` and ``exploded`` are
+    the fraction of frames flagged; ``first_exploded_frame`` is the index of the first flagged frame (-1 if
+    none); ``num_frames`` the count.
+
+    Args:
+        frames: :class:`FrameMetrics` or their ``values`` dicts, in frame order.
+
+    Returns:
+        dict of plain floats.
+    """
+    rows = [f.values if isinstance(f, FrameMetrics) else f for f in frames]
+    out: dict[str, float] = {"num_frames": float(len(rows))}
+    if not rows:
+        return out
+    keys = sorted({k for r in rows for k in r})
+    for k in keys:
+        col = np.array([r.get(k, np.nan) for r in rows], dtype=np.float64)
+        fin = col[np.isfinite(col)]
+        out[k] = float(fin.mean()) if len(fin) else float("nan")
+        if k in MAX_KEYS:
+            out[f"{k}_max"] = float(fin.max()) if len(fin) else float("nan")
+    flags = [r.get("exploded", 0.0) > 0 or r.get("nan", 0.0) > 0 for r in rows]
+    out["first_exploded_frame"] = float(flags.index(True)) if any(flags) else -1.0
+    return out

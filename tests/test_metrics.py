@@ -1,0 +1,114 @@
+"""smln.metrics on concentric spheres with known penetrations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from smln.losses import ClothRest
+from smln.metrics import FrameMetrics, frame_metrics, sequence_metrics
+from tests.test_losses import grid, make_cloth
+
+
+@pytest.fixture(scope="module")
+def body() -> tuple[torch.Tensor, torch.Tensor]:
+    s = trimesh.creation.icosphere(subdivisions=4)
+    return torch.as_tensor(s.vertices, dtype=torch.float32), torch.as_tensor(s.faces)
+
+
+@pytest.fixture(scope="module")
+def shell() -> trimesh.Trimesh:
+    return trimesh.creation.icosphere(subdivisions=3)
+
+
+def stack(shell: trimesh.Trimesh, radii: list[float]) -> tuple[ClothRest, list[np.ndarray]]:
+    """Concentric sphere layers (same mesh) at the given radii, inner -> outer; unit directions per layer."""
+    rest = ClothRest.from_cloth(make_cloth([(shell.vertices * r, shell.faces) for r in radii]))
+    return rest, [np.asarray(shell.vertices, dtype=np.float32)] * len(radii)
+
+
+def test_h_coll_inside_and_outside(body, shell):
+    b, bf = body
+    rest, (u,) = stack(shell, [1.01])
+    inside = u[:, 2] > 0.3
+    x = np.where(inside[:, None], u * 0.99, u * 1.01)
+    m = frame_metrics(x, b, rest, body_faces=bf)
+    assert math.isclose(m.values["h_coll"], 100 * inside.mean(), abs_tol=1e-9)
+    np.testing.assert_array_equal(m.body_penetration, inside)
+    assert not m.layer_penetration.any()
+    assert m.values["l_coll"] == 0.0 and m.values["nan"] == 0.0 and m.values["exploded"] == 0.0
+    # all 1 cm outside: nothing; a prebuilt tree and normals give the same result
+    from smln.geometry import build_tree, vertex_normals
+
+    m2 = frame_metrics(u * 1.01, b, rest, body_normals=vertex_normals(b, bf), body_tree=build_tree(b))
+    assert m2.values["h_coll"] == 0.0 and m2.values["collision_loss"] == 0.0
+
+
+def test_collision_loss_layersnet(body, shell):
+    b, bf = body
+    rest, (u,) = stack(shell, [1.01])
+    deep = u[:, 0] > 0.5
+    x = np.where(deep[:, None], u * 0.998, u * 1.01)  # 2 mm inside: v = -2 mm - 1 mm
+    m = frame_metrics(x, b, rest, body_faces=bf)
+    assert math.isclose(m.values["collision_loss"], 0.003**2, rel_tol=1e-3)
+
+
+def test_l_coll_outer_pushed_through_inner(body, shell):
+    b, bf = body
+    rest, (u0, u1) = stack(shell, [1.01, 1.02])
+    through = u1[:, 2] > 0.5
+    x = np.concatenate([u0 * 1.01, np.where(through[:, None], u1 * 1.0, u1 * 1.02)])
+    m = frame_metrics(torch.as_tensor(x), b * 0.9, rest, body_faces=bf)
+    assert math.isclose(m.values["l_coll"], 100 * through.mean(), abs_tol=1e-9)
+    assert m.values["l_coll_1_0"] == m.values["l_coll"]
+    assert m.values["h_coll"] == 0.0
+    np.testing.assert_array_equal(m.layer_penetration, np.concatenate([np.zeros(len(u0), bool), through]))
+
+
+def test_per_pair_l_coll_three_layers(body, shell):
+    b, bf = body
+    rest, (u, _, _) = stack(shell, [1.01, 1.02, 1.03])
+    mid_back = u[:, 2] > 0.5  # layer 1 behind layer 0 there
+    out_back = (u[:, 0] > 0.5) & ~mid_back  # layer 2 behind layer 1, in front of layer 0
+    x = np.concatenate(
+        [u * 1.01, np.where(mid_back[:, None], u * 1.005, u * 1.02), np.where(out_back[:, None], u * 1.016, u * 1.03)]
+    )
+    m = frame_metrics(x, b * 0.9, rest, body_faces=bf)
+    assert math.isclose(m.values["l_coll_1_0"], 100 * mid_back.mean(), abs_tol=1e-9)
+    assert math.isclose(m.values["l_coll_2_1"], 100 * out_back.mean(), abs_tol=1e-9)
+    # union of inner layers: nearest is layer 1 (4 mm) -> behind it, so the same vertices count
+    assert math.isclose(m.values["l_coll"], 100 * out_back.mean(), abs_tol=1e-9)
+    np.testing.assert_array_equal(m.layer_penetration, np.concatenate([np.zeros(len(u), bool), mid_back, out_back]))
+
+
+def test_bend_strain_nan_and_sequence(body):
+    b, bf = body
+    v, f = grid(4)
+    rest = ClothRest.from_cloth(make_cloth([(v, f)]))
+    x = torch.as_tensor(v, dtype=torch.float32) + torch.tensor([0.0, 0.0, 3.0])
+    m = frame_metrics(x * 1.1, b, rest, body_faces=bf)
+    assert m.values["bend"] < 1e-6
+    assert math.isclose(m.values["strain_mean"], 0.1, rel_tol=1e-4)
+    assert math.isclose(m.values["strain_max"], 0.1, rel_tol=1e-4)
+    assert m.values["exploded"] == 1.0  # more than 1 m from the body
+    phi = 0.5
+    pair = (np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0]]), np.array([[0, 1, 2], [1, 0, 3]]))
+    rest2 = ClothRest.from_cloth(make_cloth([pair]))
+    x2 = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -math.cos(phi), math.sin(phi)]]) * 0.2 + [0, 0, 1.0]
+    m2 = frame_metrics(x2, b, rest2, body_faces=bf)
+    assert math.isclose(m2.values["bend"], 1 - math.cos(phi), rel_tol=1e-4)
+    bad = x.clone()
+    bad[3, 0] = float("nan")
+    m3 = frame_metrics(bad, b, rest, body_faces=bf)
+    assert m3.values["nan"] == 1.0 and m3.values["exploded"] == 1.0 and math.isnan(m3.values["h_coll"])
+    seq = sequence_metrics(
+        [m2, m3, FrameMetrics(dict(m2.values), m2.body_penetration, m2.layer_penetration, m2.body_index)]
+    )
+    assert seq["num_frames"] == 3.0
+    assert math.isclose(seq["bend"], m2.values["bend"], rel_tol=1e-6)
+    assert math.isclose(seq["nan"], 1 / 3) and seq["first_exploded_frame"] == 1.0
+    assert seq["strain_max_max"] == m2.values["strain_max"]
