@@ -1,0 +1,320 @@
+"""The multi-layer garment graph (paper §3.1, Eq. 1-8): static per-outfit topology and the per-step build.
+
+:class:`GraphTopology` holds what never changes for an outfit (mesh edges of every layer in both directions,
+rest edge vectors, node types, the anchor hierarchy); :meth:`GraphTopology.build` turns the state at one step
+into :class:`GraphInputs` (features of every node and edge set plus the proximity edges of that step).
+
+Feature sets (all translation invariant: only differences of positions, normals, velocities and constants):
+
+- node (24, :data:`NODE_FEATURES`): velocity v_t = x_t - x_{t-1} (3, Eq. 2), vertex normal at x_t (3, the
+  position-derived feature of Eq. 4), known next displacement of pinned vertices x_{t+1} - x_t (3, zero for
+  free vertices), node type one-hot free/pinned (2), hierarchy-level one-hot (4: the coarsest anchor level
+  the node belongs to), layer position k/(L-1) and outermost flag (2), Δt (1), log10 mass (1, Eq. 3), friction
+  μ (1, Eq. 4), material (3, :meth:`~smln.cloth.Material.as_features`), body-contact flag (1: has a body edge).
+- mesh edge (12): x_s - x_r (3), norm, rest x_s - x_r (3), norm, Δt, material (3). The same set on the coarse
+  anchor levels (between anchors).
+- virtual inter-layer edge (9, Eq. 5-6): x_s - x_r at t (3), norm, difference of the inertial predictions
+  x̂ = x_t + v_t (3), norm, Δt. Each vertex of layer k+1 receives from its nearest vertex of layer k within
+  ``virtual_radius`` and vice versa.
+- body world edge (9, Eq. 7-8): x_cloth(t) - x_body(t) (3), norm, x_cloth(t) - x_body(t+1) (3), norm, Δt.
+  Each garment vertex receives from its nearest body vertex (at t) within ``body_radius``.
+
+Edge arrays are (2, E) with row 0 = sender, row 1 = receiver. Virtual edges whose receiver lies in the upper
+layer of the pair are also the repulsion layer's pairs (outer vertex i, nearest inner vertex j).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from smln.cloth import DT, Cloth
+from smln.graph.hierarchy import HierarchyLevel, anchor_hierarchy, finest_level_of, mesh_edges
+
+NODE_FEATURES: tuple[tuple[str, int], ...] = (
+    ("velocity", 3),
+    ("normal", 3),
+    ("pinned_next_displacement", 3),
+    ("node_type", 2),
+    ("hierarchy_level", 4),
+    ("layer_position", 2),
+    ("dt", 1),
+    ("log_mass", 1),
+    ("friction", 1),
+    ("material", 3),
+    ("body_contact", 1),
+)
+NODE_DIM = sum(n for _, n in NODE_FEATURES)  # 24
+MESH_EDGE_DIM = 12
+VIRTUAL_EDGE_DIM = 9
+BODY_EDGE_DIM = 9
+
+
+def _nearest(query: np.ndarray, ref: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest ``ref`` vertex of every ``query`` point within ``radius`` (scipy cKDTree).
+
+    TODO: switch to ``smln.geometry.nearest_vertices`` once it lands.
+
+    Returns:
+        query_idx (M,), ref_idx (M,) int64 for the M queries that found a neighbour.
+    """
+    if len(ref) == 0 or len(query) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    dist, idx = cKDTree(ref).query(query, k=1, distance_upper_bound=radius)
+    ok = np.isfinite(dist)
+    return np.flatnonzero(ok).astype(np.int64), idx[ok].astype(np.int64)
+
+
+def vertex_normals(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals.
+
+    TODO: switch to ``smln.geometry.vertex_normals`` once it lands.
+
+    Args:
+        x: (V, 3) positions, m.
+        faces: (F, 3) int64.
+
+    Returns:
+        (V, 3) unit normals (zero for vertices without faces). Differentiable.
+    """
+    a, b, c = x[faces[:, 0]], x[faces[:, 1]], x[faces[:, 2]]
+    fn = torch.linalg.cross(b - a, c - a)
+    vn = torch.zeros_like(x).index_add_(0, faces.reshape(-1), fn.repeat_interleave(3, dim=0))
+    return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+@dataclass
+class GraphInputs:
+    """Everything the network needs at one step (torch tensors on the topology's device).
+
+    Attributes:
+        node_features: (V, 24).
+        mesh_edges: (2, Em) sender/receiver of the fine mesh edges.
+        mesh_features: (Em, 12).
+        coarse_features: per anchor level, (E_k, 12) features of that level's edges.
+        virtual_edges: (2, Ev) sender/receiver of the inter-layer edges.
+        virtual_features: (Ev, 9).
+        body_receivers: (Eb,) garment vertex of each body edge.
+        body_features: (Eb, 9).
+        repulsion_pairs: (2, Er) (outer i, inner j): virtual edges whose receiver is in the upper layer.
+        x_cur: (V, 3) positions at t.
+        velocity: (V, 3) v_t = x_t - x_{t-1}.
+        pinned_next: (V, 3) next positions of pinned vertices (rows of free vertices unused).
+    """
+
+    node_features: torch.Tensor
+    mesh_edges: torch.Tensor
+    mesh_features: torch.Tensor
+    coarse_features: list[torch.Tensor]
+    virtual_edges: torch.Tensor
+    virtual_features: torch.Tensor
+    body_receivers: torch.Tensor
+    body_features: torch.Tensor
+    repulsion_pairs: torch.Tensor
+    x_cur: torch.Tensor
+    velocity: torch.Tensor
+    pinned_next: torch.Tensor
+
+
+class GraphTopology:
+    """Static topology of one outfit: build once with :meth:`from_cloth`, then call :meth:`build` per step."""
+
+    def __init__(
+        self,
+        cloth: Cloth,
+        levels: list[HierarchyLevel],
+        mesh_edge_index: torch.Tensor,
+        *,
+        body_radius: float,
+        virtual_radius: float,
+        dt: float,
+    ) -> None:
+        dev = cloth.rest_vertices.device
+        self.cloth = cloth
+        self.device = dev
+        self.faces = cloth.faces.to(torch.int64)
+        self.num_vertices = cloth.num_vertices
+        self.num_layers = cloth.num_layers
+        self.layer_slices = cloth.layer_slices()
+        self.layer_index = cloth.layer_index.to(torch.int64)
+        self.pinned = cloth.pinned.to(torch.bool)
+        self.free = ~self.pinned
+        self.body_radius = float(body_radius)
+        self.virtual_radius = float(virtual_radius)
+        self.dt = float(dt)
+        self.levels = levels
+        self.mesh_edges = mesh_edge_index
+        rest = cloth.rest_vertices.to(torch.float32)
+        self.rest_vectors = rest[mesh_edge_index[0]] - rest[mesh_edge_index[1]]
+        self.level_nodes = [torch.as_tensor(lv.nodes, device=dev) for lv in levels]
+        self.level_edges = [torch.as_tensor(lv.edges, device=dev) for lv in levels]
+        self.level_parent = [torch.as_tensor(lv.parent, device=dev) for lv in levels]
+        self.level_rest_vectors = []
+        for nodes, edges in zip(self.level_nodes, self.level_edges, strict=True):
+            g = nodes[edges]
+            self.level_rest_vectors.append(rest[g[0]] - rest[g[1]])
+        self.material = cloth.material.as_features().to(dev)
+        self.static_node = self._static_node_features()
+
+    @classmethod
+    def from_cloth(
+        cls,
+        cloth: Cloth,
+        *,
+        levels: int = 3,
+        body_radius: float = 0.03,
+        virtual_radius: float = 0.05,
+        dt: float = DT,
+    ) -> GraphTopology:
+        """Static graph of an outfit.
+
+        Args:
+            cloth: the concatenated layers.
+            levels: number of anchor levels (the hierarchy is cached per topology).
+            body_radius: max distance of a body world edge, m (HOOD: 3 cm).
+            virtual_radius: max distance of an inter-layer virtual edge, m.
+            dt: time step, s.
+        """
+        faces = cloth.faces.detach().cpu().numpy()
+        e = mesh_edges(faces)
+        lv = anchor_hierarchy(e, cloth.num_vertices, levels)
+        edge_index = torch.as_tensor(e, device=cloth.rest_vertices.device)
+        return cls(cloth, lv, edge_index, body_radius=body_radius, virtual_radius=virtual_radius, dt=dt)
+
+    def _static_node_features(self) -> torch.Tensor:
+        """(V, 24) node features that never change; dynamic slots left zero."""
+        v, dev = self.num_vertices, self.device
+        f = torch.zeros(v, NODE_DIM, device=dev)
+        f[:, 9] = self.free.float()
+        f[:, 10] = self.pinned.float()
+        depth = torch.as_tensor(finest_level_of(self.levels, v), device=dev).clamp_max(3)
+        f[:, 11:15] = torch.nn.functional.one_hot(depth, 4).float()
+        nl = max(self.num_layers - 1, 1)
+        f[:, 15] = self.layer_index.float() / nl
+        f[:, 16] = (self.layer_index == self.num_layers - 1).float()
+        f[:, 17] = self.dt
+        f[:, 18] = torch.log10(self.cloth.vertex_mass.to(dev).float().clamp_min(1e-9))
+        f[:, 19] = float(self.cloth.material.friction)
+        f[:, 20:23] = self.material
+        return f
+
+    def _virtual_edges(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inter-layer nearest-vertex edges (Eq. 5) for positions ``x`` (V, 3) numpy.
+
+        Returns:
+            edges (2, Ev) sender/receiver, and a (Ev,) bool mask of the edges whose receiver is the upper
+            layer (the repulsion pairs).
+        """
+        send, recv, up = [], [], []
+        for k in range(self.num_layers - 1):
+            lo, hi = self.layer_slices[k], self.layer_slices[k + 1]
+            q, r = _nearest(x[hi], x[lo], self.virtual_radius)  # upper vertex receives from lower
+            send.append(r + lo.start)
+            recv.append(q + hi.start)
+            up.append(np.ones(q.size, bool))
+            q, r = _nearest(x[lo], x[hi], self.virtual_radius)  # lower vertex receives from upper
+            send.append(r + hi.start)
+            recv.append(q + lo.start)
+            up.append(np.zeros(q.size, bool))
+        if not send:
+            return np.zeros((2, 0), np.int64), np.zeros(0, bool)
+        return np.stack([np.concatenate(send), np.concatenate(recv)]), np.concatenate(up)
+
+    def build(
+        self,
+        x_prev: torch.Tensor,
+        x_cur: torch.Tensor,
+        body_cur: torch.Tensor,
+        body_next: torch.Tensor,
+        pinned_next: torch.Tensor | None = None,
+    ) -> GraphInputs:
+        """Features and proximity edges of one step.
+
+        Args:
+            x_prev: (V, 3) garment positions at t-1, m.
+            x_cur: (V, 3) garment positions at t, m.
+            body_cur: (Vb, 3) body vertices at t, m.
+            body_next: (Vb, 3) body vertices at t+1, m.
+            pinned_next: (V, 3) positions at t+1 whose pinned rows are used (the skinned targets); None =
+                pinned vertices keep their velocity.
+
+        Returns:
+            :class:`GraphInputs`. Only features and the virtual/body edges are computed here.
+        """
+        dev = self.device
+        x_prev = x_prev.to(dev, torch.float32)
+        x_cur = x_cur.to(dev, torch.float32)
+        vel = x_cur - x_prev
+        x_hat = x_cur + vel
+        if pinned_next is None:
+            pinned_next = x_hat
+        pinned_next = pinned_next.to(dev, torch.float32)
+        dt = self.dt
+
+        xn = x_cur.detach().cpu().numpy()
+        # body world edges (Eq. 7-8): garment vertex <- nearest body vertex at t
+        b_np = body_cur.detach().cpu().numpy()
+        qb, rb = _nearest(xn, b_np, self.body_radius)
+        qb_t = torch.as_tensor(qb, device=dev)
+        rb_t = torch.as_tensor(rb, device=dev)
+        body_cur = body_cur.to(dev, torch.float32)
+        body_next = body_next.to(dev, torch.float32)
+        d0 = x_cur[qb_t] - body_cur[rb_t]
+        d1 = x_cur[qb_t] - body_next[rb_t]
+        body_feat = torch.cat(
+            [d0, d0.norm(dim=-1, keepdim=True), d1, d1.norm(dim=-1, keepdim=True),
+             torch.full((qb.size, 1), dt, device=dev)], dim=-1)
+
+        # virtual inter-layer edges (Eq. 5-6)
+        ve, up = self._virtual_edges(xn)
+        ve_t = torch.as_tensor(ve, device=dev)
+        s, r = ve_t[0], ve_t[1]
+        dv = x_cur[s] - x_cur[r]
+        dh = x_hat[s] - x_hat[r]
+        virt_feat = torch.cat(
+            [dv, dv.norm(dim=-1, keepdim=True), dh, dh.norm(dim=-1, keepdim=True),
+             torch.full((ve.shape[1], 1), dt, device=dev)], dim=-1)
+        up_t = torch.as_tensor(up, device=dev)
+        rep_pairs = torch.stack([r[up_t], s[up_t]])  # (outer i, inner j)
+
+        # mesh edges (fine and anchor levels)
+        mat = self.material.expand(1, 3)
+
+        def edge_feat(xs: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
+            n = xs.shape[0]
+            return torch.cat(
+                [xs, xs.norm(dim=-1, keepdim=True), rest, rest.norm(dim=-1, keepdim=True),
+                 torch.full((n, 1), dt, device=dev), mat.expand(n, 3)], dim=-1)
+
+        me = self.mesh_edges
+        mesh_feat = edge_feat(x_cur[me[0]] - x_cur[me[1]], self.rest_vectors)
+        coarse_feat = []
+        for nodes, edges, rest in zip(self.level_nodes, self.level_edges, self.level_rest_vectors, strict=True):
+            g = nodes[edges]
+            coarse_feat.append(edge_feat(x_cur[g[0]] - x_cur[g[1]], rest))
+
+        # nodes
+        nf = self.static_node.clone()
+        nf[:, 0:3] = vel
+        nf[:, 3:6] = vertex_normals(x_cur, self.faces)
+        pin = self.pinned.unsqueeze(-1)
+        nf[:, 6:9] = torch.where(pin, pinned_next - x_cur, torch.zeros_like(x_cur))
+        if qb.size:
+            nf[qb_t, 23] = 1.0
+        return GraphInputs(
+            node_features=nf,
+            mesh_edges=me,
+            mesh_features=mesh_feat,
+            coarse_features=coarse_feat,
+            virtual_edges=ve_t,
+            virtual_features=virt_feat,
+            body_receivers=qb_t,
+            body_features=body_feat,
+            repulsion_pairs=rep_pairs,
+            x_cur=x_cur,
+            velocity=vel,
+            pinned_next=pinned_next,
+        )

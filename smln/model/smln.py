@@ -1,0 +1,192 @@
+"""SMLN: encoder -> hierarchical processor -> decoder (p) + repulsion layer (a) (paper §3.2-3.3, Eq. 9-16)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+import torch
+from torch import nn
+
+from smln.cloth import DT, GRAVITY
+from smln.graph.multilayer import (
+    BODY_EDGE_DIM,
+    MESH_EDGE_DIM,
+    NODE_DIM,
+    VIRTUAL_EDGE_DIM,
+    GraphInputs,
+    GraphTopology,
+    vertex_normals,
+)
+from smln.model.mlp import MLP
+from smln.model.normalizer import Normalizer
+from smln.model.processor import Processor
+from smln.model.repulsion import RepulsionLayer
+
+
+@dataclass
+class SMLNConfig:
+    """Architecture of an SMLN model (everything a checkpoint needs to rebuild it).
+
+    Defaults are chosen for the speed targets (<= 50 ms/frame for a 2-layer ~5k-vertex outfit on 2 CPU
+    cores, <= 0.25 s per training step on a ~1.5k-vertex outfit). One message-passing step on the fine level
+    of a 5k-vertex outfit costs ~20-30 ms at latent 64 (DESIGN.md "Speed facts"), so the fine level gets only
+    one step on the way down and one on the way up (it must end at the fine level so the decoder sees sharp
+    per-vertex information), and the remaining steps run on the anchor levels, which hold 1/2, 1/4 and 1/8 of
+    the nodes. Latent 64 (the paper's 128 costs ~2.5x per step) and one hidden layer per MLP (the MLP class
+    defaults to two, MeshGraphNets-style; the measured probe in DESIGN.md used one) keep the fine steps
+    affordable. See ``bench/rollout_speed.py`` for the measured figures.
+
+    Attributes:
+        latent_size: width of node/edge latents and MLP hidden layers.
+        mlp_hidden_layers: hidden layers of every encoder/processor/decoder MLP.
+        levels: anchor levels of the hierarchy (HOOD: 3).
+        schedule: ((level, steps), ...) visited in order; starts and ends at level 0, changes level by one.
+        body_radius: body world edge radius, m (HOOD: 3 cm).
+        virtual_radius: inter-layer virtual edge radius, m.
+        use_repulsion_layer: add the repulsion layer's acceleration ``a`` (Eq. 14-16).
+        repulsion_threshold: repulsion activation distance along the inner normal, m.
+        repulsion_hidden: repulsion MLP width (paper: 32).
+        output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
+            output statistics from near-rigid motion have ~0 vertical variance and would freeze Z.
+        normalizer_accumulations: training forward calls that update the input statistics, then frozen.
+        dt: time step the graph features carry, s.
+    """
+
+    latent_size: int = 64
+    mlp_hidden_layers: int = 1
+    levels: int = 3
+    schedule: tuple[tuple[int, int], ...] = field(
+        default_factory=lambda: ((0, 1), (1, 1), (2, 1), (3, 2), (2, 1), (1, 1), (0, 1))
+    )
+    body_radius: float = 0.03
+    virtual_radius: float = 0.05
+    use_repulsion_layer: bool = True
+    repulsion_threshold: float = 0.005
+    repulsion_hidden: int = 32
+    output_scale: float = GRAVITY * DT * DT
+    normalizer_accumulations: int = 200
+    dt: float = DT
+
+    def __post_init__(self) -> None:
+        self.schedule = tuple((int(lv), int(n)) for lv, n in self.schedule)
+        if not self.schedule or self.schedule[0][0] != 0 or self.schedule[-1][0] != 0:
+            raise ValueError("schedule must start and end at level 0")
+        for (a, _), (b, _) in zip(self.schedule[:-1], self.schedule[1:], strict=True):
+            if abs(a - b) != 1:
+                raise ValueError(f"schedule levels must change by exactly one, got {a} -> {b}")
+        if max(lv for lv, _ in self.schedule) > self.levels:
+            raise ValueError("schedule visits a level above `levels`")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict (schedule as nested lists)."""
+        d = asdict(self)
+        d["schedule"] = [list(s) for s in self.schedule]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SMLNConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``."""
+        names = {f.name for f in fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise TypeError(f"unknown SMLNConfig fields: {sorted(unknown)}")
+        return cls(**d)
+
+
+class SMLN(nn.Module):
+    """The SMLN network. Per step: ``p, a, extras = model(topology.build(...))``.
+
+    Outfit-independent: all weights and normaliser buffers have shapes fixed by the config, so one model
+    animates any outfit (the topology is built per outfit by :meth:`make_topology`).
+    """
+
+    def __init__(self, config: SMLNConfig | None = None) -> None:
+        super().__init__()
+        cfg = config or SMLNConfig()
+        self.config = cfg
+        lat, nh, acc = cfg.latent_size, cfg.mlp_hidden_layers, cfg.normalizer_accumulations
+        self.node_norm = Normalizer(NODE_DIM, acc)
+        self.mesh_norm = Normalizer(MESH_EDGE_DIM, acc)
+        self.virtual_norm = Normalizer(VIRTUAL_EDGE_DIM, acc)
+        self.body_norm = Normalizer(BODY_EDGE_DIM, acc)
+        self.coarse_norm = nn.ModuleList([Normalizer(MESH_EDGE_DIM, acc) for _ in range(cfg.levels)])
+        self.node_encoder = MLP(NODE_DIM, lat, lat, nh)  # Eq. 9
+        self.mesh_encoder = MLP(MESH_EDGE_DIM, lat, lat, nh)  # Eq. 10
+        self.virtual_encoder = MLP(VIRTUAL_EDGE_DIM, lat, lat, nh)  # Eq. 11
+        self.body_encoder = MLP(BODY_EDGE_DIM, lat, lat, nh)  # Eq. 12
+        self.coarse_encoders = nn.ModuleList([MLP(MESH_EDGE_DIM, lat, lat, nh) for _ in range(cfg.levels)])
+        self.processor = Processor(lat, cfg.schedule, nh)
+        self.decoder = MLP(lat, 3, lat, nh, layer_norm=False)
+        self.repulsion = RepulsionLayer(cfg.repulsion_threshold, cfg.repulsion_hidden)
+        self.register_buffer("output_scale", torch.tensor(float(cfg.output_scale), dtype=torch.float32))
+
+    def make_topology(self, cloth: Any) -> GraphTopology:
+        """Static graph of an outfit with this model's radii and levels."""
+        c = self.config
+        return GraphTopology.from_cloth(
+            cloth, levels=c.levels, body_radius=c.body_radius, virtual_radius=c.virtual_radius, dt=c.dt
+        )
+
+    def forward(self, graph: GraphInputs, topology: GraphTopology) -> tuple[
+        torch.Tensor, torch.Tensor, dict[str, Any]
+    ]:
+        """One step.
+
+        Args:
+            graph: features of the step (:meth:`GraphTopology.build`).
+            topology: the outfit's static topology (hierarchy, faces, pinned mask).
+
+        Returns:
+            p: (V, 3) predicted acceleration, m/frame^2 (zero on pinned vertices).
+            a: (V, 3) repulsion acceleration, m/frame^2 (zeros if the layer is off; zero on pinned vertices).
+            extras: ``x_hat`` (V, 3) = x_t + v_t + p, ``x_next`` = x_hat + a with pinned vertices at their
+                targets, ``repulsion`` (the layer's extras, if on).
+        """
+        h = self.node_encoder(self.node_norm(graph.node_features))
+        me, ve = graph.mesh_edges, graph.virtual_edges
+        fine = {
+            "mesh": (me[0], me[1], self.mesh_encoder(self.mesh_norm(graph.mesh_features))),
+            "virtual": (ve[0], ve[1], self.virtual_encoder(self.virtual_norm(graph.virtual_features))),
+            "body": (None, graph.body_receivers, self.body_encoder(self.body_norm(graph.body_features))),
+        }
+        visited = {lv for lv, _ in self.config.schedule}
+        coarse = []
+        for k, feat in enumerate(graph.coarse_features):
+            ed = topology.level_edges[k]
+            if k + 1 in visited:  # levels the schedule never visits (pooled through only) need no edges
+                coarse.append((ed[0], ed[1], self.coarse_encoders[k](self.coarse_norm[k](feat))))
+            else:
+                coarse.append((ed[0], ed[1], feat[:, :0]))
+        h = self.processor(h, fine, coarse, topology.level_parent)
+        free = topology.free.unsqueeze(-1).to(h.dtype)
+        p = self.decoder(h) * self.output_scale * free
+        x_hat = graph.x_cur + graph.velocity + p
+        extras: dict[str, Any] = {}
+        if self.config.use_repulsion_layer:
+            normals = vertex_normals(x_hat, topology.faces)
+            a, rep = self.repulsion(graph.x_cur, x_hat, normals, graph.repulsion_pairs)
+            a = a * free
+            extras["repulsion"] = rep
+        else:
+            a = torch.zeros_like(p)
+        pin = topology.pinned.unsqueeze(-1)
+        x_next = torch.where(pin, graph.pinned_next, x_hat + a)
+        extras["x_hat"] = x_hat
+        extras["x_next"] = x_next
+        return p, a, extras
+
+    def step(
+        self,
+        topology: GraphTopology,
+        x_prev: torch.Tensor,
+        x_cur: torch.Tensor,
+        body_cur: torch.Tensor,
+        body_next: torch.Tensor,
+        pinned_next: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
+        graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next)
+        p, a, extras = self(graph, topology)
+        extras["graph"] = graph
+        return p, a, extras

@@ -1,0 +1,150 @@
+"""SMLN network: shapes, pinned vertices, translation invariance, repulsion layer, normaliser, backward."""
+
+import pytest
+import torch
+
+from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube_outfit
+from smln.model import MLP, SMLN, Normalizer, RepulsionLayer, SMLNConfig
+
+
+@pytest.fixture(scope="module")
+def scene():
+    torch.manual_seed(0)
+    cloth = tube_outfit(radii=(0.12, 0.125), n_around=24, n_rings=10)
+    bv, _ = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    tr = sway_motion(4)
+    return cloth, rigid_lbs(torch.as_tensor(bv), tr), rigid_lbs(cloth.rest_vertices, tr)
+
+
+def small_config(**kw):
+    base = dict(latent_size=16, schedule=((0, 1), (1, 1), (2, 1), (1, 1), (0, 1)))
+    base.update(kw)
+    return SMLNConfig(**base)
+
+
+def test_config_validation():
+    with pytest.raises(ValueError):
+        SMLNConfig(schedule=((0, 1), (2, 1), (0, 1)))
+    with pytest.raises(ValueError):
+        SMLNConfig(schedule=((1, 1), (0, 1)))
+    cfg = SMLNConfig()
+    assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
+
+
+def test_mlp_layernorm_and_decoder():
+    m = MLP(5, 8, 16, 2)
+    assert isinstance(m[-1], torch.nn.LayerNorm)
+    assert sum(isinstance(x, torch.nn.Linear) for x in m) == 3
+    d = MLP(5, 3, 16, 2, layer_norm=False)
+    assert isinstance(d[-1], torch.nn.Linear)
+
+
+def test_forward_shapes_and_pinned(scene):
+    cloth, body, xs = scene
+    model = SMLN(small_config()).eval()
+    topo = model.make_topology(cloth)
+    with torch.no_grad():
+        p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+    v = cloth.num_vertices
+    assert p.shape == (v, 3) and a.shape == (v, 3)
+    assert torch.all(torch.isfinite(p)) and torch.all(torch.isfinite(a))
+    pin = cloth.pinned
+    assert torch.all(p[pin] == 0) and torch.all(a[pin] == 0)
+    assert torch.allclose(ex["x_next"][pin], xs[2][pin])
+    assert p[~pin].abs().max() > 0
+
+
+def test_default_config_runs(scene):
+    cloth, body, xs = scene
+    model = SMLN().eval()
+    topo = model.make_topology(cloth)
+    with torch.no_grad():
+        p, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+    assert torch.all(torch.isfinite(p))
+
+
+def test_translation_invariance(scene):
+    cloth, body, xs = scene
+    torch.manual_seed(1)
+    model = SMLN(small_config(repulsion_threshold=0.02)).eval()  # wide threshold: repulsion active
+    topo = model.make_topology(cloth)
+    shift = torch.tensor([0.3, -0.2, 0.5])
+    with torch.no_grad():
+        p0, a0, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+        p1, a1, _ = model.step(topo, xs[0] + shift, xs[1] + shift, body[1] + shift, body[2] + shift, xs[2] + shift)
+    assert a0.abs().max() > 0
+    assert torch.allclose(p0, p1, atol=1e-5)
+    assert torch.allclose(a0, a1, atol=1e-5)
+
+
+def _two_sheets(gap: float):
+    """Inner 3x3 vertex grid at z=0 (normals +Z) and one outer vertex above its centre at height ``gap``."""
+    g = torch.stack(torch.meshgrid(torch.arange(3.0), torch.arange(3.0), indexing="ij"), -1).reshape(-1, 2) * 0.01
+    inner = torch.cat([g, torch.zeros(9, 1)], 1)
+    outer = torch.tensor([[0.01, 0.01, gap]])
+    x = torch.cat([inner, outer])
+    normals = torch.zeros(10, 3)
+    normals[:, 2] = 1.0
+    pairs = torch.tensor([[9], [4]])
+    return x, normals, pairs
+
+
+def test_repulsion_zero_when_separated():
+    layer = RepulsionLayer(threshold=0.005)
+    x, n, pairs = _two_sheets(0.0051)
+    a, ex = layer(x, x, n, pairs)
+    assert torch.count_nonzero(a) == 0
+    assert ex["active_pairs"].shape[1] == 0
+
+
+def test_repulsion_pushes_penetrating_vertex_outward():
+    torch.manual_seed(0)
+    layer = RepulsionLayer(threshold=0.005)
+    x, n, pairs = _two_sheets(-0.002)  # outer vertex 2 mm behind the inner layer
+    a, ex = layer(x, x, n, pairs)
+    assert a[9, 2] > 0  # along +n_j
+    assert torch.allclose(a[9, :2], torch.zeros(2))
+    assert torch.count_nonzero(a[:9]) == 0  # inner vertices are not pushed
+    assert ex["active_pairs"].shape[1] == 1
+    # continuous at the threshold: smaller push closer to it
+    x2, _, _ = _two_sheets(0.004)
+    a2, _ = layer(x2, x2, n, pairs)
+    assert 0 < a2[9, 2] < a[9, 2]
+
+
+def test_repulsion_off_gives_zeros(scene):
+    cloth, body, xs = scene
+    model = SMLN(small_config(use_repulsion_layer=False)).eval()
+    topo = model.make_topology(cloth)
+    with torch.no_grad():
+        _, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+    assert torch.count_nonzero(a) == 0
+
+
+def test_normalizer_accumulates_then_freezes():
+    nm = Normalizer(2, max_accumulations=2).eval()
+    x = torch.tensor([[1.0, 10.0], [3.0, 30.0]])
+    assert torch.equal(nm(x), x)  # identity before any data
+    assert nm.count.item() == 0  # no accumulation in eval mode
+    nm.train()
+    nm(x)
+    mean, std = nm.mean_std()
+    assert torch.allclose(mean, torch.tensor([2.0, 20.0]))
+    nm(x + 100)
+    assert nm.frozen
+    before = nm.total.clone()
+    nm(x)
+    assert torch.equal(nm.total, before)
+    assert set(dict(nm.named_buffers())) == {"count", "calls", "total", "total_sq"}
+
+
+def test_backward_reaches_all_weights(scene):
+    cloth, body, xs = scene
+    model = SMLN(small_config(repulsion_threshold=0.02)).train()
+    topo = model.make_topology(cloth)
+    p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+    loss = (ex["x_next"] ** 2).sum()
+    loss.backward()
+    unused = "coarse_encoders.2."  # level 3 is not visited by the small schedule
+    missing = [n for n, w in model.named_parameters() if w.grad is None and not n.startswith(unused)]
+    assert not missing, missing
