@@ -1,0 +1,167 @@
+"""SMLN checkpoints: weights and normaliser buffers as safetensors plus a JSON card. Never executes code.
+
+Layout for a stem ``ckpt/run1`` (or a directory ``ckpt/run1/``, which holds ``model.safetensors`` and
+``card.json``): ``ckpt/run1.safetensors`` + ``ckpt/run1.json``. The card holds the format name and version, the
+architecture config (:class:`~smln.model.SMLNConfig`), the variant name, the training settings and the sha256 of
+the tensor file. Loading validates, in order: both files exist, the tensor file is a safetensors file (a pickle
+or zip renamed to ``.safetensors`` is refused before anything is parsed), the card's schema and version, the
+sha256, every tensor name and shape against the config, and finiteness.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+
+from smln.model.smln import SMLN, SMLNConfig
+
+FORMAT = "smln-checkpoint"
+VERSION = 1
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, malformed, tampered with or does not match its config."""
+
+
+def _paths(path: str | Path) -> tuple[Path, Path]:
+    p = Path(path)
+    if p.is_dir() or str(path).endswith(("/", "\\")):
+        return p / "model.safetensors", p / "card.json"
+    if p.suffix in (".safetensors", ".json"):
+        p = p.with_suffix("")
+    return p.with_name(p.name + ".safetensors"), p.with_name(p.name + ".json")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def save_checkpoint(path: str | Path, model: SMLN, config: SMLNConfig | None = None, card: dict | None = None) -> Path:
+    """Write ``model``'s weights and buffers (normaliser statistics included) and a JSON card.
+
+    Args:
+        path: a stem (``ckpt/run1`` -> ``ckpt/run1.safetensors`` + ``.json``) or a directory.
+        model: the network.
+        config: its architecture (default ``model.config``).
+        card: extra card fields, e.g. ``{"variant": "full", "training": {...}}``; ``variant`` defaults to
+            ``"smln"``.
+
+    Returns:
+        Path of the JSON card.
+    """
+    config = config or model.config
+    tensors_path, card_path = _paths(path)
+    tensors_path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
+    save_file(state, str(tensors_path), metadata={"format": FORMAT, "version": str(VERSION)})
+    extra = dict(card or {})
+    out: dict[str, Any] = {
+        "format": FORMAT,
+        "version": VERSION,
+        "variant": extra.pop("variant", "smln"),
+        "config": config.to_dict(),
+        "training": extra.pop("training", {}),
+        "smln_version": _package_version(),
+        "tensors_file": tensors_path.name,
+        "sha256": _sha256(tensors_path),
+        "tensors": {k: list(v.shape) for k, v in state.items()},
+    }
+    out.update(extra)
+    card_path.write_text(json.dumps(out, indent=2, sort_keys=True))
+    return card_path
+
+
+def _package_version() -> str:
+    import smln
+
+    return getattr(smln, "__version__", "unknown")
+
+
+def _check_header(path: Path) -> None:
+    """Refuse files that are not safetensors (pickles, torch zip archives) without parsing them."""
+    with path.open("rb") as f:
+        head = f.read(9)
+    if head[:1] == b"\x80" or head[:2] == b"PK":
+        kind = "a pickle" if head[:1] == b"\x80" else "a zip archive (torch.save)"
+        raise CheckpointError(f"{path} is {kind}, not safetensors; refusing to load it (pickles can run code)")
+    if len(head) < 9 or head[8:9] != b"{":
+        raise CheckpointError(f"{path} is not a safetensors file (bad header)")
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[SMLN, dict]:
+    """Load and validate a checkpoint written by :func:`save_checkpoint`.
+
+    Args:
+        path: the stem, either file, or the directory.
+        map_location: device of the returned model.
+
+    Returns:
+        (model in eval mode, card dict).
+
+    Raises:
+        CheckpointError: with a message naming what is wrong.
+    """
+    tensors_path, card_path = _paths(path)
+    if not card_path.is_file():
+        raise CheckpointError(f"checkpoint card not found: {card_path}")
+    if not tensors_path.is_file():
+        raise CheckpointError(f"checkpoint tensors not found: {tensors_path}")
+    _check_header(tensors_path)
+    try:
+        card = json.loads(card_path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"{card_path}: not valid JSON ({e})") from e
+    if not isinstance(card, dict) or card.get("format") != FORMAT:
+        raise CheckpointError(f"{card_path}: not an {FORMAT} card")
+    if card.get("version") != VERSION:
+        raise CheckpointError(f"{card_path}: unsupported version {card.get('version')!r} (expected {VERSION})")
+    for key in ("config", "sha256"):
+        if key not in card:
+            raise CheckpointError(f"{card_path}: missing field {key!r}")
+    digest = _sha256(tensors_path)
+    if digest != card["sha256"]:
+        raise CheckpointError(
+            f"{tensors_path}: sha256 mismatch (file {digest[:12]}..., card {str(card['sha256'])[:12]}...): "
+            "the weights were modified or belong to another card"
+        )
+    try:
+        config = SMLNConfig.from_dict(card["config"])
+    except (TypeError, ValueError) as e:
+        raise CheckpointError(f"{card_path}: invalid config ({e})") from e
+    model = SMLN(config)
+    expected = model.state_dict()
+    try:
+        with safe_open(str(tensors_path), framework="pt") as f:
+            names = set(f.keys())
+            missing = sorted(set(expected) - names)
+            unexpected = sorted(names - set(expected))
+            if missing or unexpected:
+                raise CheckpointError(
+                    f"{tensors_path}: tensor names do not match the config (missing {missing[:5]}, "
+                    f"unexpected {unexpected[:5]})"
+                )
+            state = {}
+            for name in sorted(names):
+                t = f.get_tensor(name)
+                if tuple(t.shape) != tuple(expected[name].shape) or t.dtype != expected[name].dtype:
+                    raise CheckpointError(
+                        f"{tensors_path}: tensor {name!r} is {tuple(t.shape)} {t.dtype}, the config needs "
+                        f"{tuple(expected[name].shape)} {expected[name].dtype}"
+                    )
+                if t.is_floating_point() and not torch.isfinite(t).all():
+                    raise CheckpointError(f"{tensors_path}: tensor {name!r} contains NaN or Inf")
+                state[name] = t
+    except SafetensorError as e:
+        raise CheckpointError(f"{tensors_path}: unreadable safetensors file ({e})") from e
+    model.load_state_dict(state, strict=True)
+    return model.to(map_location).eval(), card
