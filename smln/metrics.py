@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from smln.geometry import build_tree, vertex_normals
+from smln.geometry import build_tree, refine_nearest, vertex_normals
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -75,6 +75,10 @@ def _vertex_normals_np(x: np.ndarray, faces: torch.Tensor) -> np.ndarray:
     return vertex_normals(torch.from_numpy(x), faces).numpy()
 
 
+def _normalize(v: torch.Tensor) -> torch.Tensor:
+    return v / (torch.linalg.norm(v, dim=1, keepdim=True) + 1e-12)
+
+
 def _layersnet_loss(d: np.ndarray, dist: np.ndarray) -> float:
     v = np.minimum(d - LAYERSNET_MARGIN, 0.0)
     v = np.where((d >= -LAYERSNET_RADIUS) & (dist < LAYERSNET_RADIUS), v, 0.0)
@@ -93,6 +97,8 @@ def frame_metrics(
     body_faces: torch.Tensor | np.ndarray | None = None,
     body_normals: torch.Tensor | np.ndarray | None = None,
     body_tree: cKDTree | None = None,
+    body_index_hint: np.ndarray | torch.Tensor | None = None,
+    body_neighbors: np.ndarray | torch.Tensor | None = None,
     workers: int = 1,
 ) -> FrameMetrics:
     """All metrics of one frame (definitions in the module docstring).
@@ -104,6 +110,10 @@ def frame_metrics(
         body_faces: (Fb, 3) int64, needed unless ``body_normals`` is given.
         body_normals: (Vb, 3) unit outward body vertex normals at this frame (skips computing them).
         body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k).
+        body_index_hint: (V,) nearest body vertices of a nearby state (e.g. the previous frame's
+            ``FrameMetrics.body_index``); with ``body_neighbors`` the nearest body vertices are found by
+            :func:`smln.geometry.refine_nearest` (greedy walk, no tree; a local minimum, see there).
+        body_neighbors: (Vb, K) one-ring table of the body (:func:`smln.geometry.vertex_neighbors`).
         workers: threads for the KD-tree queries (scipy ``workers``).
 
     Returns:
@@ -137,8 +147,12 @@ def frame_metrics(
         bn = _vertex_normals_np(b, bf)
     else:
         bn = _np32(body_normals)
-    tree = body_tree if body_tree is not None else build_tree(b)
-    bdist, bidx = tree.query(x, k=1, workers=workers)
+    if body_index_hint is not None and body_neighbors is not None:
+        bidx_t, bdist_t = refine_nearest(x, b, body_index_hint, body_neighbors)
+        bidx, bdist = bidx_t.numpy(), bdist_t.numpy()
+    else:
+        tree = body_tree if body_tree is not None else build_tree(b)
+        bdist, bidx = tree.query(x, k=1, workers=workers)
     d_body = _signed(x, b, bn, bidx)
     body_pen = d_body < 0.0
 
@@ -147,10 +161,17 @@ def frame_metrics(
         "collision_loss": _layersnet_loss(d_body, bdist),
     }
 
+    # cloth face cross products (2 area * normal): face normals for bend, vertex normals for the layers
+    faces = rest.faces.cpu()
+    f = faces.numpy()
+    x0 = x[f[:, 0]]
+    fc = np.cross(x[f[:, 1]] - x0, x[f[:, 2]] - x0)
+    corners = faces.T.reshape(-1)
+
     # layers: per adjacent pair, and outermost against the union of the inner layers
     layer_pen = no.copy()
     if nl > 1:
-        cn = _vertex_normals_np(x, rest.faces.cpu())
+        cn = _normalize(torch.zeros(nv, 3).index_add_(0, corners, torch.from_numpy(fc).repeat(3, 1))).numpy()
         trees = [build_tree(x[s]) for s in rest.layer_slices[:-1]]
         outer = rest.layer_slices[-1]
         best_d = best_signed = np.zeros(0)
@@ -177,9 +198,7 @@ def frame_metrics(
         values["layer_collision_loss"] = 0.0
 
     # bend (PBNS): 1 - cos between adjacent face normals
-    f = rest.faces.cpu().numpy()
-    fn = np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True) + 1e-12
+    fn = fc / (np.linalg.norm(fc, axis=1, keepdims=True) + 1e-12)
     hf = rest.hinge_faces.cpu().numpy()
     values["bend"] = float(1.0 - np.einsum("ij,ij->i", fn[hf[:, 0]], fn[hf[:, 1]]).mean()) if len(hf) else 0.0
 

@@ -87,9 +87,7 @@ def test_interior_edges_closed_and_open():
 
 def test_dihedral_angle_of_folded_pair():
     phi = 0.7
-    x = torch.tensor(
-        [[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -math.cos(phi), math.sin(phi)]], dtype=torch.float64
-    )
+    x = torch.tensor([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -math.cos(phi), math.sin(phi)]], dtype=torch.float64)
     ie = interior_edges(torch.tensor([[0, 1, 2], [1, 0, 3]]))
     theta = dihedral_angles(x, ie.edges, ie.opposite)
     assert abs(abs(theta.item()) - phi) < 1e-9
@@ -125,3 +123,20 @@ def test_close_pairs_radius_and_k():
     assert d[0] < d[1] < 0.02
     qi, ri, _ = close_pairs(query, ref, radius=0.004, k=2)
     assert len(qi) == 0
+
+
+def test_vertex_neighbors_and_refine_nearest(sphere):
+    from smln.geometry import refine_nearest, vertex_neighbors
+
+    f = _t(sphere.faces, torch.long)
+    nb = vertex_neighbors(f)
+    assert nb.shape == (len(sphere.vertices), 6)  # icosphere valence 5 or 6, padded with self
+    for i in [0, 50, 600]:
+        assert set(nb[i].tolist()) - {i} == set(sphere.vertex_neighbors[i])
+    ref = _t(sphere.vertices)
+    rng = np.random.default_rng(0)
+    query = ref[rng.integers(0, len(ref), 200)] * 1.02 + 0.01 * torch.as_tensor(rng.normal(size=(200, 3)))
+    exact, dexact = nearest_vertices(query, ref)
+    idx, d = refine_nearest(query, ref, torch.zeros(200, dtype=torch.long), nb)  # walk from far away
+    assert torch.equal(idx, exact)
+    np.testing.assert_allclose(d.numpy(), dexact.numpy(), atol=1e-6)

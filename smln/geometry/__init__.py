@@ -2,10 +2,11 @@
 
 Mesh (torch, differentiable, batched over leading dims): :func:`face_normals`, :func:`face_areas`,
 :func:`vertex_normals`, :func:`unique_edges`, :func:`interior_edges`, :func:`hinge_normals`,
-:func:`dihedral_angles`.
+:func:`dihedral_angles`, :func:`vertex_neighbors`.
 
 Proximity (scipy cKDTree; indices without gradient, distances differentiable): :func:`build_tree`,
-:func:`nearest_vertices`, :func:`signed_distance_along_normals`, :func:`close_pairs`.
+:func:`nearest_vertices`, :func:`refine_nearest` (greedy walk from a hint),
+:func:`signed_distance_along_normals`, :func:`close_pairs`.
 """
 
 from smln.geometry.mesh import (
@@ -16,12 +17,14 @@ from smln.geometry.mesh import (
     hinge_normals,
     interior_edges,
     unique_edges,
+    vertex_neighbors,
     vertex_normals,
 )
 from smln.geometry.proximity import (
     build_tree,
     close_pairs,
     nearest_vertices,
+    refine_nearest,
     signed_distance_along_normals,
 )
 
@@ -35,7 +38,9 @@ __all__ = [
     "hinge_normals",
     "interior_edges",
     "nearest_vertices",
+    "refine_nearest",
     "signed_distance_along_normals",
     "unique_edges",
+    "vertex_neighbors",
     "vertex_normals",
 ]

@@ -179,3 +179,28 @@ def dihedral_angles(x: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor
     sin = (torch.linalg.cross(n1, n2, dim=-1) * e).sum(-1)
     cos = (n1 * n2).sum(-1)
     return torch.atan2(sin, cos)
+
+
+def vertex_neighbors(faces: torch.Tensor, num_vertices: int | None = None) -> torch.Tensor:
+    """One-ring neighbour table of a mesh, padded.
+
+    Args:
+        faces: (F, 3) int64.
+        num_vertices: V (default: max index + 1).
+
+    Returns:
+        (V, K) int64, K = max valence; row i lists i's neighbours, padded with i itself.
+    """
+    n = int(num_vertices if num_vertices is not None else faces.max().item() + 1)
+    e = unique_edges(faces)
+    src = torch.cat([e[:, 0], e[:, 1]])
+    dst = torch.cat([e[:, 1], e[:, 0]])
+    order = torch.argsort(src, stable=True)
+    src, dst = src[order], dst[order]
+    deg = torch.bincount(src, minlength=n)
+    start = torch.cumsum(deg, 0) - deg
+    rank = torch.arange(len(src)) - start[src]
+    k = int(deg.max().item()) if len(src) else 1
+    table = torch.arange(n).unsqueeze(1).repeat(1, k)
+    table[src, rank] = dst
+    return table
