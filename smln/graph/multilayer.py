@@ -32,6 +32,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from smln.cloth import DT, Cloth
+from smln.geometry import vertex_normals
 from smln.graph.hierarchy import HierarchyLevel, anchor_hierarchy, finest_level_of, mesh_edges
 
 NODE_FEATURES: tuple[tuple[str, int], ...] = (
@@ -56,7 +57,7 @@ BODY_EDGE_DIM = 9
 def _nearest(query: np.ndarray, ref: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Nearest ``ref`` vertex of every ``query`` point within ``radius`` (scipy cKDTree).
 
-    TODO: switch to ``smln.geometry.nearest_vertices`` once it lands.
+    A radius-limited query (``smln.geometry.nearest_vertices`` has no radius cut, which the edge sets need).
 
     Returns:
         query_idx (M,), ref_idx (M,) int64 for the M queries that found a neighbour.
@@ -66,24 +67,6 @@ def _nearest(query: np.ndarray, ref: np.ndarray, radius: float) -> tuple[np.ndar
     dist, idx = cKDTree(ref).query(query, k=1, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     return np.flatnonzero(ok).astype(np.int64), idx[ok].astype(np.int64)
-
-
-def vertex_normals(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals.
-
-    TODO: switch to ``smln.geometry.vertex_normals`` once it lands.
-
-    Args:
-        x: (V, 3) positions, m.
-        faces: (F, 3) int64.
-
-    Returns:
-        (V, 3) unit normals (zero for vertices without faces). Differentiable.
-    """
-    a, b, c = x[faces[:, 0]], x[faces[:, 1]], x[faces[:, 2]]
-    fn = torch.linalg.cross(b - a, c - a)
-    vn = torch.zeros_like(x).index_add_(0, faces.reshape(-1), fn.repeat_interleave(3, dim=0))
-    return vn / vn.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 @dataclass

@@ -92,14 +92,16 @@ def capsule_body(radius: float = 0.1, height: float = 1.2, max_edge: float = 0.0
     return v.astype(np.float32), np.asarray(f, dtype=np.int64)
 
 
-def sway_motion(num_frames: int, amplitude: float = 0.05, period: float = 1.0, fps: float = 30.0) -> torch.Tensor:
-    """One-bone rigid motion: sideways sway (m) and a small rotation about Z.
+def sway_motion(
+    num_frames: int, amplitude: float = 0.05, period: float = 1.0, angle: float = 0.3, fps: float = 30.0
+) -> torch.Tensor:
+    """One-bone rigid motion: sideways sway of ``amplitude`` (m) and a rotation about Z of ``angle`` (rad).
 
     Returns: (T, 1, 4, 4) float32 rest -> posed transforms.
     """
     t = torch.arange(num_frames, dtype=torch.float32) / fps
     ph = 2 * math.pi * t / period
-    ang = 0.3 * torch.sin(ph)
+    ang = angle * torch.sin(ph)
     m = torch.zeros(num_frames, 1, 4, 4)
     m[:, 0, 0, 0] = torch.cos(ang)
     m[:, 0, 0, 1] = -torch.sin(ang)

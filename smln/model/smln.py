@@ -118,6 +118,9 @@ class SMLN(nn.Module):
         self.coarse_encoders = nn.ModuleList([MLP(MESH_EDGE_DIM, lat, lat, nh) for _ in range(cfg.levels)])
         self.processor = Processor(lat, cfg.schedule, nh)
         self.decoder = MLP(lat, 3, lat, nh, layer_norm=False)
+        with torch.no_grad():  # start close to inertial motion rather than O(g dt^2) noise per vertex
+            self.decoder[-1].weight.mul_(0.01)
+            self.decoder[-1].bias.zero_()
         self.repulsion = RepulsionLayer(cfg.repulsion_threshold, cfg.repulsion_hidden)
         self.register_buffer("output_scale", torch.tensor(float(cfg.output_scale), dtype=torch.float32))
 

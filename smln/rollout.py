@@ -1,0 +1,176 @@
+"""Step a model autoregressively through a body clip (the RolloutFrame contract of docs/ARCHITECTURE.md).
+
+Initial state (paper §3.1: "the first three frames of rigid deformation"): the garments are skinned onto the
+body with the cloth's skin weights (``smln.body.lbs``). With ``initial_velocity="skinned"`` (default) frames 0
+and 1 are the skinned frames (x_prev, x_cur) and the network predicts from frame 2 on, so the cloth starts
+with the body's velocity; with ``"zero"`` frame 0 is used twice (zero velocity) and the network predicts from
+frame 1 (DESIGN.md notes that a zero-velocity start on a moving body makes the worst samples).
+
+Per predicted frame: ``x_{t+1} = x_t + v_t + p + a`` (Eq. 16), pinned vertices set to their skinned positions,
+then masks and metrics (:func:`smln.metrics.frame_metrics`). Divergence (non-finite positions, a vertex more
+than ``max_distance`` from its skinned position, or max edge strain above ``max_strain``) raises
+:class:`RolloutError` naming the frame, or with ``fallback=True`` replaces the frame by skinning (velocity
+reset to the skinned velocity) and marks it ``fallback=True``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from smln.body import lbs
+from smln.cloth import Cloth
+from smln.losses.rest import ClothRest
+from smln.metrics import frame_metrics
+from smln.model.smln import SMLN
+
+
+class RolloutError(RuntimeError):
+    """The rollout diverged (message names the frame and the cause)."""
+
+
+@dataclass
+class RolloutFrame:
+    """One frame of a rollout (arrays float32 numpy on the CPU; accelerations in m/frame^2)."""
+
+    index: int
+    garment_positions: np.ndarray
+    body_vertices: np.ndarray
+    predicted_acceleration: np.ndarray
+    repulsion_acceleration: np.ndarray
+    layer_penetration: np.ndarray
+    body_penetration: np.ndarray
+    metrics: dict[str, float]
+    fallback: bool
+
+
+def _sequence_arrays(body_sequence: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """(vertices (T, Vb, 3), transforms (T, B, 4|3, 4)) from a BodySequence-like object or a pair."""
+    if isinstance(body_sequence, tuple | list):
+        verts, transforms = body_sequence
+    else:
+        verts, transforms = body_sequence.vertices, body_sequence.transforms
+    return torch.as_tensor(verts, dtype=torch.float32), torch.as_tensor(transforms, dtype=torch.float32)
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    return x.detach().to("cpu", torch.float32).numpy()
+
+
+def rollout(
+    model: SMLN,
+    cloth: Cloth,
+    body_sequence: Any,
+    body_faces: torch.Tensor | np.ndarray,
+    *,
+    num_frames: int | None = None,
+    device: str | torch.device = "cpu",
+    fallback: bool = False,
+    initial_velocity: str = "skinned",
+    max_distance: float = 1.0,
+    max_strain: float = 1.0,
+) -> Iterator[RolloutFrame]:
+    """Animate ``cloth`` on a body clip with ``model``.
+
+    Args:
+        model: the network (moved to ``device``, run in eval mode without gradients).
+        cloth: the outfit (rest pose, skin weights into the body's bones).
+        body_sequence: object with ``vertices`` (T, Vb, 3) and ``transforms`` (T, B, 4, 4) (or the pair).
+        body_faces: (Fb, 3) body triangles (body normals for the metrics).
+        num_frames: frames to produce (default: the whole clip).
+        device: "cpu" or "cuda".
+        fallback: replace a diverged frame by skinning instead of raising.
+        initial_velocity: "skinned" (frames 0, 1 skinned) or "zero" (frame 0 twice).
+        max_distance: divergence threshold on the distance to the skinned position, m.
+        max_strain: divergence threshold on the max edge strain (1.0 = an edge doubled).
+
+    Yields:
+        :class:`RolloutFrame` for frames 0 .. num_frames-1.
+
+    Raises:
+        RolloutError: on divergence without ``fallback``; ValueError on bad arguments.
+    """
+    if initial_velocity not in ("skinned", "zero"):
+        raise ValueError(f"initial_velocity must be 'skinned' or 'zero', got {initial_velocity!r}")
+    body_v, transforms = _sequence_arrays(body_sequence)
+    total = body_v.shape[0]
+    n = total if num_frames is None else min(int(num_frames), total)
+    if n < 1:
+        return
+    dev = torch.device(device)
+    model = model.to(dev).eval()
+    cloth_d = cloth.to(dev)
+    topology = model.make_topology(cloth_d)
+    rest = ClothRest.from_cloth(cloth)
+    faces_np = np.asarray(body_faces, dtype=np.int64)
+    skinned = lbs(
+        cloth.rest_vertices.float(), cloth.skin_indices, cloth.skin_weights, transforms[:n]
+    ).to(dev)
+    body_d = body_v[:n].to(dev)
+    zeros = np.zeros((cloth.num_vertices, 3), np.float32)
+
+    def make_frame(t: int, x: torch.Tensor, p: np.ndarray, a: np.ndarray, fb: bool, extra: dict) -> RolloutFrame:
+        fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np)
+        metrics = dict(fm.values)
+        metrics.update(extra)
+        metrics["repulsion_mean"] = float(np.linalg.norm(a, axis=1).mean())
+        metrics["repulsion_max"] = float(np.linalg.norm(a, axis=1).max()) if len(a) else 0.0
+        metrics["prediction_mean"] = float(np.linalg.norm(p, axis=1).mean())
+        return RolloutFrame(
+            index=t,
+            garment_positions=_np(x),
+            body_vertices=_np(body_v[t]),
+            predicted_acceleration=p,
+            repulsion_acceleration=a,
+            layer_penetration=fm.layer_penetration,
+            body_penetration=fm.body_penetration,
+            metrics=metrics,
+            fallback=fb,
+        )
+
+    x_prev = skinned[0]
+    yield make_frame(0, skinned[0], zeros, zeros, False, {"ms_model": 0.0})
+    if initial_velocity == "skinned":
+        if n < 2:
+            return
+        x_cur = skinned[1]
+        yield make_frame(1, x_cur, zeros, zeros, False, {"ms_model": 0.0})
+        first = 2
+    else:
+        x_cur = skinned[0]
+        first = 1
+
+    with torch.no_grad():
+        for t in range(first, n):
+            t0 = time.perf_counter()
+            p, a, ex = model.step(topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t])
+            x_next = ex["x_next"]
+            ms = 1e3 * (time.perf_counter() - t0)
+            reason = _divergence(x_next, skinned[t], max_distance)
+            if reason is None:
+                frame = make_frame(t, x_next, _np(p), _np(a), False, {"ms_model": ms})
+                if frame.metrics["strain_max"] > max_strain:
+                    reason = f"max edge strain {frame.metrics['strain_max']:.2f} > {max_strain}"
+            if reason is not None:
+                if not fallback:
+                    raise RolloutError(f"frame {t}: rollout diverged ({reason})")
+                x_next = skinned[t]
+                x_cur = skinned[t - 1]
+                frame = make_frame(t, x_next, zeros, zeros, True, {"ms_model": ms})
+            yield frame
+            x_prev, x_cur = x_cur, x_next
+
+
+def _divergence(x: torch.Tensor, skinned: torch.Tensor, max_distance: float) -> str | None:
+    """Cheap checks before the metrics: non-finite positions or a vertex too far from its skinned place."""
+    if not bool(torch.isfinite(x).all()):
+        return "non-finite positions"
+    d = float((x - skinned).norm(dim=-1).max())
+    if d > max_distance:
+        return f"a vertex is {d:.2f} m from its skinned position (> {max_distance} m)"
+    return None

@@ -1,0 +1,76 @@
+"""Rollout: an untrained model animates two tube layers on a moving capsule; divergence handling."""
+
+import numpy as np
+import pytest
+import torch
+
+from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube_outfit
+from smln.model import SMLN, SMLNConfig
+from smln.rollout import RolloutError, RolloutFrame, rollout
+
+
+@pytest.fixture(scope="module")
+def scene():
+    cloth = tube_outfit(radii=(0.12, 0.126), n_around=24, n_rings=10)
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    tr = sway_motion(12, amplitude=0.03, period=1.5, angle=0.1)
+    body = rigid_lbs(torch.as_tensor(bv), tr)
+    return cloth, (body, tr), bf
+
+
+def small_model(**kw) -> SMLN:
+    torch.manual_seed(0)
+    return SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1)), **kw))
+
+
+def test_untrained_rollout_10_frames(scene):
+    cloth, seq, bf = scene
+    frames = list(rollout(small_model(), cloth, seq, bf, num_frames=10))
+    assert [f.index for f in frames] == list(range(10))
+    v = cloth.num_vertices
+    for f in frames:
+        assert isinstance(f, RolloutFrame)
+        assert f.garment_positions.shape == (v, 3) and f.garment_positions.dtype == np.float32
+        assert f.body_vertices.shape == seq[0].shape[1:]
+        assert f.predicted_acceleration.shape == (v, 3) and f.repulsion_acceleration.shape == (v, 3)
+        assert f.layer_penetration.shape == (v,) and f.layer_penetration.dtype == bool
+        assert f.body_penetration.shape == (v,) and f.body_penetration.dtype == bool
+        for key in ("l_coll", "h_coll", "strain_mean", "strain_max", "repulsion_mean", "ms_model"):
+            assert np.isfinite(f.metrics[key]), key
+        assert not f.fallback
+        assert np.isfinite(f.garment_positions).all()
+    # skinned start: frames 0 and 1 carry no prediction; pinned vertices follow the skinning
+    assert np.count_nonzero(frames[0].predicted_acceleration) == 0
+    assert np.count_nonzero(frames[5].predicted_acceleration) > 0
+    skinned = rigid_lbs(cloth.rest_vertices, seq[1])
+    pin = cloth.pinned.numpy()
+    np.testing.assert_allclose(frames[7].garment_positions[pin], skinned[7].numpy()[pin], atol=1e-6)
+
+
+def test_zero_velocity_start(scene):
+    cloth, seq, bf = scene
+    frames = list(rollout(small_model(use_repulsion_layer=False), cloth, seq, bf, num_frames=3,
+                          initial_velocity="zero"))
+    assert np.count_nonzero(frames[1].predicted_acceleration) > 0
+    assert all(np.count_nonzero(f.repulsion_acceleration) == 0 for f in frames)
+
+
+def exploding_model() -> SMLN:
+    m = small_model()
+    with torch.no_grad():
+        m.output_scale.fill_(10.0)  # 10 m/frame^2: diverges on the first predicted frame
+    return m
+
+
+def test_divergence_raises_with_frame(scene):
+    cloth, seq, bf = scene
+    with pytest.raises(RolloutError, match="frame 2"):
+        list(rollout(exploding_model(), cloth, seq, bf, num_frames=5))
+
+
+def test_divergence_fallback_to_skinning(scene):
+    cloth, seq, bf = scene
+    frames = list(rollout(exploding_model(), cloth, seq, bf, num_frames=5, fallback=True))
+    assert [f.fallback for f in frames] == [False, False, True, True, True]
+    skinned = rigid_lbs(cloth.rest_vertices, seq[1])
+    np.testing.assert_allclose(frames[3].garment_positions, skinned[3].numpy(), atol=1e-6)
