@@ -1,0 +1,223 @@
+"""Evaluation: roll checkpoints out over test clips and print the paper's tables.
+
+``smln eval --checkpoint checkpoints/full --checkpoint checkpoints/baseline --outfits seen --motions test``
+prints, per method, Bend, Collision loss, L-Coll %, H-Coll % (paper Tables 1/3), per unseen outfit (Table 2),
+plus mean/max edge strain, ms/frame and the number of frames that fell back to skinning, with a skinning-only row
+(garments rigidly skinned, no network) for reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from smln.body import DEFAULT_SHAPE, load_body
+from smln.data_sampling import make_scene
+from smln.losses import ClothRest
+from smln.metrics import frame_metrics, sequence_metrics
+from smln.rollout import RolloutFrame
+
+TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "ms_model", "fallback")
+
+
+@dataclass
+class RunResult:
+    """Metrics of one method on one outfit × clip."""
+
+    method: str
+    outfit: str
+    motion: str
+    split: str
+    metrics: dict[str, float]
+    per_frame: list[dict[str, float]] = field(default_factory=list)
+
+
+def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
+    """The skinning-only reference: garments rigidly skinned onto the body, no dynamics."""
+    rest = ClothRest.from_cloth(scene.cloth)
+    faces = scene.body.faces.numpy()
+    zeros = np.zeros((scene.cloth.num_vertices, 3), np.float32)
+    for t in range(num_frames):
+        t0 = time.perf_counter()
+        x = scene.skinned[t]
+        fm = frame_metrics(x, scene.body.vertices[t], rest, body_faces=faces)
+        m = dict(fm.values)
+        m["ms_model"] = 1e3 * (time.perf_counter() - t0)
+        yield RolloutFrame(t, x.numpy(), scene.body.vertices[t].numpy(), zeros, zeros, fm.layer_penetration,
+                           fm.body_penetration, m, False)
+
+
+def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu") -> Iterator[RolloutFrame]:
+    """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model."""
+    if method == "skinning":
+        return skinning_frames(scene, num_frames)
+    if method == "solver":
+        from smln.solver import solver_rollout
+
+        return solver_rollout(scene.cloth, scene.body, num_frames=num_frames)
+    from smln.rollout import rollout
+
+    return rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=num_frames, device=device,
+                   fallback=True)
+
+
+def summarise(frames: Iterable[RolloutFrame]) -> tuple[dict[str, float], list[dict[str, float]]]:
+    rows = []
+    for fr in frames:
+        m = dict(fr.metrics)
+        m["fallback"] = float(fr.fallback)
+        rows.append(m)
+    seq = sequence_metrics(rows)
+    seq["fallback_frames"] = float(sum(r["fallback"] for r in rows))
+    # ms/frame over the network frames only (frames 0-1 are the skinned initial state)
+    ms = [r["ms_model"] for r in rows[2:]] or [0.0]
+    seq["ms_model"] = float(np.median(ms))
+    return seq, rows
+
+
+def evaluate(
+    methods: dict[str, object | None],
+    outfits: list[str],
+    motions: list[str],
+    *,
+    shape: str = DEFAULT_SHAPE,
+    frames: int | None = None,
+    edge_length: float = 0.02,
+    device: str = "cpu",
+    progress: bool = True,
+) -> list[RunResult]:
+    """Run every method on every outfit × clip.
+
+    Args:
+        methods: display name -> loaded model (or None for ``skinning``/``solver``).
+        outfits, motions: names. shape: body preset. frames: frames per clip (None = full clip).
+    """
+    from smln.garments import outfit_split
+    from smln.motion import load_body_sequence
+
+    body = load_body(shape)
+    results = []
+    for motion in motions:
+        seq = load_body_sequence(motion, body, max_frames=frames)
+        for outfit in outfits:
+            scene = make_scene(outfit, shape, motion, edge_length=edge_length, body_sequence=seq)
+            n = scene.num_frames
+            for name, model in methods.items():
+                t0 = time.time()
+                kind = name if model is None else "model"
+                seq_metrics, rows = summarise(method_frames(kind, model, scene, n, device))
+                if progress:
+                    print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
+                          f"L-Coll {seq_metrics['l_coll']:.2f}% H-Coll {seq_metrics['h_coll']:.2f}% "
+                          f"({time.time() - t0:.0f} s)", flush=True)
+                results.append(RunResult(name, outfit, motion, outfit_split(outfit), seq_metrics, rows))
+    return results
+
+
+def aggregate(results: list[RunResult], key: str = "method") -> dict[str, dict[str, float]]:
+    """Mean of each table metric per method (or per ``(method, outfit)`` with key='outfit'), frame-weighted."""
+    groups: dict[str, list[RunResult]] = {}
+    for r in results:
+        g = r.method if key == "method" else f"{r.method} | {r.outfit}"
+        groups.setdefault(g, []).append(r)
+    out = {}
+    for g, rs in groups.items():
+        w = np.array([r.metrics["num_frames"] for r in rs])
+        row = {k: float(np.average([r.metrics.get(k, np.nan) for r in rs], weights=w)) for k in TABLE_KEYS
+               if k not in ("strain_max", "fallback")}
+        row["strain_max"] = float(max(r.metrics.get("strain_max_max", np.nan) for r in rs))
+        row["fallback_frames"] = float(sum(r.metrics.get("fallback_frames", 0) for r in rs))
+        row["frames"] = float(w.sum())
+        row["exploded_frames"] = float(sum(r.metrics.get("exploded", 0) * r.metrics["num_frames"] for r in rs))
+        out[g] = row
+    return out
+
+
+def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
+    head = ("| method | Bend ↓ | Collision loss (mm²) ↓ | L-Coll % ↓ | H-Coll % ↓ | strain mean % | strain max % "
+            "| ms/frame | fallback frames | frames |")
+    lines = [f"**{title}**", "", head, "|" + "---|" * 10]
+    for name, r in rows.items():
+        lines.append(
+            f"| {name} | {r['bend']:.4f} | {r['collision_loss'] * 1e6:.3f} | {r['l_coll']:.2f} | {r['h_coll']:.2f} "
+            f"| {100 * r['strain_mean']:.2f} | {100 * r['strain_max']:.1f} | {r['ms_model']:.0f} "
+            f"| {int(r['fallback_frames'])} | {int(r['frames'])} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def resolve_names(spec: list[str] | None, kind: str) -> list[str]:
+    """Outfit or clip names from a split name (train/test, seen/unseen) or explicit names."""
+    from smln.garments import outfit_names
+    from smln.motion import list_clips
+
+    if not spec:
+        spec = ["seen"] if kind == "outfits" else ["test"]
+    if kind == "outfits":
+        if spec in (["seen"], ["unseen"], ["all"]):
+            return outfit_names({"seen": "train", "unseen": "test", "all": None}[spec[0]])
+        if spec in (["train"], ["test"]):
+            return outfit_names(spec[0])
+        return spec
+    if spec in (["train"], ["test"]):
+        return list_clips(spec[0])
+    if spec == ["all"]:
+        return list_clips()
+    return spec
+
+
+def cli_main(args: argparse.Namespace) -> None:
+    main(args.argv)
+
+
+def main(argv: list[str] | None = None) -> list[RunResult]:
+    from smln.checkpoint import load_checkpoint
+
+    p = argparse.ArgumentParser(prog="smln eval", description=__doc__.splitlines()[0])
+    p.add_argument("--checkpoint", action="append", default=[], help="checkpoint path (repeatable)")
+    p.add_argument("--outfits", nargs="+", help="seen | unseen | all | outfit names (default: seen)")
+    p.add_argument("--motions", nargs="+", help="train | test | all | clip names (default: test)")
+    p.add_argument("--shape", default=DEFAULT_SHAPE)
+    p.add_argument("--frames", type=int, help="frames per clip (default: the whole clip)")
+    p.add_argument("--edge-length", type=float, default=0.02)
+    p.add_argument("--no-skinning", action="store_true", help="leave out the skinning-only row")
+    p.add_argument("--solver", action="store_true", help="add the reference L-BFGS solver (slow)")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", help="write all results as JSON")
+    p.add_argument("--markdown", help="write the tables as markdown")
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    methods: dict[str, object | None] = {}
+    for ck in a.checkpoint:
+        model, card = load_checkpoint(ck)
+        methods[card.get("variant") or Path(ck).name] = model
+    if not a.no_skinning:
+        methods["skinning"] = None
+    if a.solver:
+        methods["solver"] = None
+    outfits = resolve_names(a.outfits, "outfits")
+    motions = resolve_names(a.motions, "motions")
+    results = evaluate(methods, outfits, motions, shape=a.shape, frames=a.frames, edge_length=a.edge_length,
+                       device=a.device)
+    text = [f"Outfits: {', '.join(outfits)}; clips: {', '.join(motions)}; shape {a.shape}; "
+            f"frames {a.frames or 'full clip'}\n",
+            markdown_table(aggregate(results), "Per method (paper Tables 1 and 3)")]
+    unseen = [r for r in results if r.split == "test"]
+    if unseen:
+        text.append(markdown_table(aggregate(unseen, key="outfit"), "Per unseen outfit (paper Table 2)"))
+    report = "\n".join(text)
+    print(report)
+    if a.markdown:
+        Path(a.markdown).write_text(report)
+    if a.json:
+        Path(a.json).write_text(json.dumps([{"method": r.method, "outfit": r.outfit, "motion": r.motion,
+                                             "split": r.split, "metrics": r.metrics} for r in results], indent=1))
+    return results

@@ -1,0 +1,432 @@
+"""Self-supervised training of SMLN (paper §3.3, §4): motion clips, outfits and physics losses, no garment data.
+
+Each *episode* picks an outfit from the training split, a body-shape preset, a training clip and a start frame,
+initialises the garments by skinning (x_{t-1}, x_t from the skinned frames t0-1, t0) and rolls the model out
+autoregressively. After every step the losses of Eq. 17 (+ inertia and body collision) are back-propagated
+through that one step and the optimiser steps; the history is detached (HOOD). The episode length grows during
+training (``rollout_start`` -> ``rollout_max``), so later episodes train on the model's own long-rollout states,
+which is what long rollouts need to stay stable. A fixed 90-frame validation rollout on a training clip is
+tracked; the best checkpoint by that rollout is kept.
+
+Run ``smln train --variant full --minutes 60 --out runs/full``; ``--resume`` continues bit-for-bit from the last
+saved state (model, optimiser, normaliser statistics, RNG streams, step). Under
+``torchrun --nproc_per_node=N`` the same entry point trains with DistributedDataParallel (gloo on CPU, nccl on
+GPU); each rank samples its own episodes, gradients are averaged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from smln.body import BODY_SHAPES
+from smln.data_sampling import Scene, SceneCache
+from smln.losses import BodyStep, LossWeights, total_loss
+from smln.model import SMLN, SMLNConfig
+
+VARIANTS = {
+    # name: (repulsion layer on, repulsion loss weight)  -- the paper's Table 3 rows
+    "full": (True, 1e3),
+    "no_repulsion_layer": (False, 1e3),
+    "baseline": (False, 0.0),
+}
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run (saved in the run directory and the checkpoint card)."""
+
+    variant: str = "full"
+    seed: int = 0
+    max_steps: int = 200_000
+    minutes: float | None = None
+    lr: float = 1e-4
+    lr_halving_steps: int = 20_000
+    min_lr: float = 1e-6
+    grad_clip: float = 1.0
+    edge_length: float = 0.035
+    shapes: list[str] = field(default_factory=lambda: list(BODY_SHAPES))
+    outfits: list[str] | None = None  # None = the training split
+    motions: list[str] | None = None  # None = the training split
+    rollout_start: int = 2
+    rollout_max: int = 48
+    rollout_growth_steps: int = 6000
+    noise_std: float = 0.003
+    save_every: int = 250
+    validate_every: int = 500
+    validation_frames: int = 90
+    validation_outfit: str | None = None
+    validation_motion: str = "02_01_walk"
+    log_every: int = 10
+    threads: int = 1
+    model: dict[str, Any] = field(default_factory=dict)
+
+    def weights(self) -> LossWeights:
+        return LossWeights(repulsion=VARIANTS[self.variant][1])
+
+    def model_config(self) -> SMLNConfig:
+        cfg = dict(self.model)
+        cfg["use_repulsion_layer"] = VARIANTS[self.variant][0]
+        return SMLNConfig.from_dict(cfg) if cfg else SMLNConfig(use_repulsion_layer=VARIANTS[self.variant][0])
+
+
+# ----------------------------------------------------------------------------------------------- distributed
+
+
+def _dist_info() -> tuple[int, int]:
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+
+
+def _init_distributed(device: torch.device) -> bool:
+    rank, world = _dist_info()
+    if world <= 1:
+        return False
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return True
+
+
+# ------------------------------------------------------------------------------------------------- sampling
+
+
+class EpisodeSampler:
+    """Draws (outfit, shape, clip, start frame, length) from a seeded numpy generator."""
+
+    def __init__(self, cfg: TrainConfig, seed: int) -> None:
+        from smln.garments import outfit_names
+        from smln.motion import list_clips
+
+        self.outfits = cfg.outfits or outfit_names("train")
+        self.motions = cfg.motions or list_clips("train")
+        self.shapes = cfg.shapes
+        self.rng = np.random.default_rng(seed)
+        self.cfg = cfg
+
+    def rollout_length(self, step: int) -> int:
+        c = self.cfg
+        frac = min(1.0, step / max(1, c.rollout_growth_steps))
+        return int(round(c.rollout_start + frac * (c.rollout_max - c.rollout_start)))
+
+    def draw(self, step: int, cache: SceneCache) -> tuple[Scene, int, int]:
+        outfit = self.outfits[self.rng.integers(len(self.outfits))]
+        shape = self.shapes[self.rng.integers(len(self.shapes))]
+        motion = self.motions[self.rng.integers(len(self.motions))]
+        scene = cache.get(outfit, shape, motion)
+        length = self.rollout_length(step)
+        last_start = max(1, scene.num_frames - 2 - length)
+        start = int(self.rng.integers(1, last_start + 1))
+        length = min(length, scene.num_frames - 1 - start)
+        return scene, start, length
+
+
+# ------------------------------------------------------------------------------------------------- training
+
+
+class Trainer:
+    """Owns the model, optimiser, sampler, logs and checkpoints of one run."""
+
+    def __init__(self, cfg: TrainConfig, out_dir: Path, device: str = "cpu") -> None:
+        if cfg.variant not in VARIANTS:
+            raise ValueError(f"unknown variant {cfg.variant!r}; choose one of {', '.join(VARIANTS)}")
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.device = torch.device(device)
+        self.distributed = _init_distributed(self.device)
+        self.rank, self.world = _dist_info()
+        torch.manual_seed(cfg.seed)
+        self.model = SMLN(cfg.model_config()).to(self.device)
+        self.net: torch.nn.Module = self.model
+        if self.distributed:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.net = DistributedDataParallel(self.model, find_unused_parameters=True)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
+        self.sampler = EpisodeSampler(cfg, cfg.seed * 1000 + self.rank)
+        self.noise = torch.Generator().manual_seed(cfg.seed * 1000 + self.rank + 1)
+        self.cache = SceneCache(self.model, edge_length=cfg.edge_length)
+        self.weights = cfg.weights()
+        self.step = 0
+        self.wall = 0.0
+        self.best_score = math.inf
+        self.history: list[dict[str, float]] = []
+
+    # -- one autoregressive step -------------------------------------------------------------------------
+    def train_step(self, scene: Scene, t: int, x_prev: torch.Tensor, x_cur: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        """Predict x_{t+1} from (x_{t-1}, x_t), back-propagate the losses of this step, step the optimiser."""
+        topo = scene.topology
+        body_cur, body_next = scene.body.vertices[t], scene.body.vertices[t + 1]
+        pinned_next = scene.skinned[t + 1]
+        if self.cfg.noise_std > 0:
+            eps = torch.randn(x_cur.shape, generator=self.noise) * self.cfg.noise_std
+            eps[scene.cloth.pinned] = 0
+            x_prev, x_cur = x_prev + eps, x_cur + eps
+        graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next)
+        p, a, extras = self.net(graph, topo)
+        x_next = extras["x_next"]
+        body = BodyStep.from_vertices(body_cur, body_next, scene.body.faces)
+        loss, terms = total_loss(x_prev, x_cur, x_next, body, scene.rest, self.weights)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+        for group in self.opt.param_groups:
+            group["lr"] = max(self.cfg.min_lr, self.cfg.lr * 0.5 ** (self.step / self.cfg.lr_halving_steps))
+        self.opt.step()
+        self.step += 1
+        terms["grad_norm"] = float(grad_norm)
+        terms["repulsion_mean"] = float(a.detach().norm(dim=-1).mean())
+        return x_next.detach(), terms
+
+    def run_episode(self) -> list[dict[str, float]]:
+        scene, start, length = self.sampler.draw(self.step, self.cache)
+        x_prev, x_cur = scene.skinned[start - 1].clone(), scene.skinned[start].clone()
+        logs = []
+        for k in range(length):
+            t = start + k
+            x_next, terms = self.train_step(scene, t, x_prev, x_cur)
+            if not torch.isfinite(x_next).all() or (x_next - scene.skinned[t + 1]).norm(dim=-1).max() > 1.0:
+                terms["reset"] = 1.0
+                logs.append(terms)
+                break  # diverged: start a fresh episode from skinning
+            x_prev, x_cur = x_cur, x_next
+            logs.append(terms)
+        return logs
+
+    # -- validation ------------------------------------------------------------------------------------------
+    def validate(self) -> dict[str, float]:
+        from smln.rollout import rollout
+
+        c = self.cfg
+        outfit = c.validation_outfit or self.sampler.outfits[0]
+        scene = self.cache.get(outfit, "female_average", c.validation_motion)
+        frames = min(c.validation_frames, scene.num_frames - 2)
+        seq = scene.body.slice(0, frames + 1)
+        self.model.eval()
+        metrics: list[dict[str, float]] = []
+        exploded = 0.0
+        try:
+            with torch.no_grad():
+                for fr in rollout(self.model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True):
+                    metrics.append(fr.metrics)
+                    if fr.fallback:
+                        exploded = 1.0
+                        break
+        finally:
+            self.model.train()
+        keys = ("strain_mean", "h_coll", "l_coll")
+        out = {f"val_{k}": float(np.mean([m.get(k, np.nan) for m in metrics])) if metrics else math.nan for k in keys}
+        out["val_frames"] = float(len(metrics))
+        out["val_exploded"] = exploded
+        score = out["val_strain_mean"] + out["val_h_coll"] / 100 + out["val_l_coll"] / 100
+        out["val_score"] = score + 10.0 * exploded + (frames - len(metrics)) / max(frames, 1)
+        return out
+
+    # -- persistence -------------------------------------------------------------------------------------------
+    def state_path(self) -> Path:
+        return self.out / "train_state.pt"
+
+    def save_state(self) -> None:
+        """Everything needed to continue bit-for-bit (loadable with ``torch.load(weights_only=True)``)."""
+        state = {
+            "model": self.model.state_dict(),
+            "optimizer": self.opt.state_dict(),
+            "step": self.step,
+            "wall": self.wall,
+            "best_score": self.best_score,
+            "torch_rng": torch.get_rng_state(),
+            "noise_rng": self.noise.get_state(),
+            "sampler_rng": json.dumps(self.sampler.rng.bit_generator.state),
+        }
+        tmp = self.state_path().with_suffix(".tmp")
+        torch.save(state, tmp)
+        tmp.replace(self.state_path())
+
+    def load_state(self) -> None:
+        state = torch.load(self.state_path(), map_location="cpu", weights_only=True)
+        self.model.load_state_dict(state["model"])
+        self.opt.load_state_dict(state["optimizer"])
+        self.step = int(state["step"])
+        self.wall = float(state["wall"])
+        self.best_score = float(state["best_score"])
+        torch.set_rng_state(state["torch_rng"])
+        self.noise.set_state(state["noise_rng"])
+        self.sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
+
+    def card(self, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+        return {
+            "variant": self.cfg.variant,
+            "training": {**asdict(self.cfg), "steps": self.step, "wall_time_s": round(self.wall, 1),
+                         "processes": self.world, "device": str(self.device),
+                         "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+                         "torch": torch.__version__},
+            "loss_weights": asdict(self.weights),
+            **(extra or {}),
+        }
+
+    def save_checkpoint(self, name: str, extra: dict[str, Any] | None = None) -> Path:
+        from smln.checkpoint import save_checkpoint
+
+        path = self.out / name
+        save_checkpoint(path, self.model, card=self.card(extra))
+        return path
+
+    # -- logs ----------------------------------------------------------------------------------------------------
+    def append_log(self, rows: list[dict[str, float]]) -> None:
+        path = self.out / "log.csv"
+        keys = ["step", "wall_s", "total", "stretch", "bending", "gravity", "inertia", "collision", "friction",
+                "repulsion", "grad_norm", "repulsion_mean", "val_strain_mean", "val_h_coll", "val_l_coll",
+                "val_frames", "val_exploded", "val_score"]
+        new = not path.exists()
+        with open(path, "a", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
+            if new:
+                writer.writeheader()
+            for r in rows:
+                writer.writerow({k: r.get(k, "") for k in keys})
+
+    # -- main loop -----------------------------------------------------------------------------------------------
+    def fit(self) -> None:
+        from tqdm import tqdm
+
+        cfg = self.cfg
+        main = self.rank == 0
+        self.out.mkdir(parents=True, exist_ok=True)
+        if main:
+            (self.out / "config.json").write_text(json.dumps(asdict(cfg), indent=1))
+        budget = cfg.minutes * 60 if cfg.minutes else math.inf
+        started = time.time() - self.wall
+        bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not main, dynamic_ncols=True)
+        pending: list[dict[str, float]] = []
+        last_save, last_val = self.step, self.step
+        while self.step < cfg.max_steps and (time.time() - started) < budget:
+            t0 = time.time()
+            logs = self.run_episode()
+            self.wall = time.time() - started
+            for i, r in enumerate(logs):
+                r["step"] = self.step - len(logs) + i + 1
+                r["wall_s"] = round(self.wall, 2)
+            pending.extend(logs[:: max(1, cfg.log_every)] if len(logs) > 1 else logs)
+            if main and logs:
+                last = logs[-1]
+                bar.update(len(logs))
+                bar.set_postfix(loss=f"{last['total']:.3g}", st=f"{last.get('stretch', 0):.2g}",
+                                col=f"{last.get('collision', 0):.2g}", sps=f"{len(logs) / (time.time() - t0):.1f}")
+            if self.step - last_val >= cfg.validate_every:
+                last_val = self.step
+                if main:
+                    val = self.validate()
+                    pending.append({"step": self.step, "wall_s": round(self.wall, 2), **val})
+                    if val["val_score"] < self.best_score:
+                        self.best_score = val["val_score"]
+                        self.save_checkpoint("best", {"validation": val})
+            if self.step - last_save >= cfg.save_every:
+                last_save = self.step
+                if main:
+                    self.append_log(pending)
+                    pending = []
+                    self.save_state()
+                    self.save_checkpoint("last")
+        if main:
+            self.append_log(pending)
+            self.save_state()
+            self.save_checkpoint("last")
+            plot_log(self.out / "log.csv", self.out / "loss.png")
+        bar.close()
+
+
+def plot_log(csv_path: Path, png_path: Path) -> None:
+    """PNG of every loss term (moving average) and the validation curves of a run's log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader(open(csv_path)))
+    if not rows:
+        return
+    terms = ["total", "stretch", "bending", "gravity", "inertia", "collision", "friction", "repulsion"]
+    vals = ["val_strain_mean", "val_h_coll", "val_l_coll", "val_frames"]
+    fig, axes = plt.subplots(3, 4, figsize=(16, 10))
+    for ax, key in zip(axes.flat, terms + vals, strict=False):
+        pts = [(float(r["step"]), float(r[key])) for r in rows if r.get(key) not in ("", None)]
+        if not pts:
+            ax.set_visible(False)
+            continue
+        s, v = np.array(pts).T
+        if not key.startswith("val_") and len(v) > 20:
+            k = max(1, len(v) // 50)
+            v = np.convolve(v, np.ones(k) / k, mode="same")
+        ax.plot(s, v)
+        ax.set_title(key)
+        if key in ("stretch", "collision", "repulsion", "bending", "friction") and (v > 0).all():
+            ax.set_yscale("log")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=70)
+    plt.close(fig)
+
+
+def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Namespace]:
+    p = argparse.ArgumentParser(prog="smln train", description="Self-supervised training of SMLN.")
+    p.add_argument("--config", help="JSON file with TrainConfig fields (flags override it)")
+    p.add_argument("--variant", choices=list(VARIANTS))
+    p.add_argument("--out", required=True, help="run directory (log.csv, loss.png, train_state.pt, best/, last/)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/train_state.pt")
+    p.add_argument("--minutes", type=float, help="wall-clock budget; the run ends cleanly after it")
+    p.add_argument("--max-steps", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--lr", type=float)
+    p.add_argument("--threads", type=int)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--outfits", nargs="+")
+    p.add_argument("--motions", nargs="+")
+    p.add_argument("--shapes", nargs="+")
+    p.add_argument("--save-every", type=int)
+    p.add_argument("--validate-every", type=int)
+    p.add_argument("--rollout-max", type=int)
+    args = p.parse_args(argv)
+    base: dict[str, Any] = {}
+    run_cfg = Path(args.out) / "config.json"
+    if args.resume and run_cfg.exists():
+        base = json.loads(run_cfg.read_text())
+    elif args.config:
+        base = json.loads(Path(args.config).read_text())
+    cfg = TrainConfig(**base)
+    for flag, key in (("variant", "variant"), ("minutes", "minutes"), ("max_steps", "max_steps"), ("seed", "seed"),
+                      ("lr", "lr"), ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
+                      ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
+                      ("rollout_max", "rollout_max")):
+        if getattr(args, flag) is not None:
+            setattr(cfg, key, getattr(args, flag))
+    return cfg, args
+
+
+def train(argv: list[str] | None = None) -> Trainer:
+    cfg, args = parse_args(argv)
+    torch.set_num_threads(cfg.threads)
+    trainer = Trainer(cfg, Path(args.out), device=args.device)
+    if args.resume:
+        if not trainer.state_path().exists():
+            raise FileNotFoundError(f"nothing to resume: {trainer.state_path()} does not exist")
+        trainer.load_state()
+    trainer.fit()
+    return trainer
+
+
+def cli_main(args: argparse.Namespace) -> None:
+    train(args.argv)
+
+
+if __name__ == "__main__":
+    train()
