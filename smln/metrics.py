@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from smln.geometry import build_tree, refine_nearest, vertex_normals
+from smln.geometry import build_tree, vertex_normals
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -97,8 +97,6 @@ def frame_metrics(
     body_faces: torch.Tensor | np.ndarray | None = None,
     body_normals: torch.Tensor | np.ndarray | None = None,
     body_tree: cKDTree | None = None,
-    body_index_hint: np.ndarray | torch.Tensor | None = None,
-    body_neighbors: np.ndarray | torch.Tensor | None = None,
     workers: int = 1,
 ) -> FrameMetrics:
     """All metrics of one frame (definitions in the module docstring).
@@ -110,10 +108,6 @@ def frame_metrics(
         body_faces: (Fb, 3) int64, needed unless ``body_normals`` is given.
         body_normals: (Vb, 3) unit outward body vertex normals at this frame (skips computing them).
         body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k).
-        body_index_hint: (V,) nearest body vertices of a nearby state (e.g. the previous frame's
-            ``FrameMetrics.body_index``); with ``body_neighbors`` the nearest body vertices are found by
-            :func:`smln.geometry.refine_nearest` (greedy walk, no tree; a local minimum, see there).
-        body_neighbors: (Vb, K) one-ring table of the body (:func:`smln.geometry.vertex_neighbors`).
         workers: threads for the KD-tree queries (scipy ``workers``).
 
     Returns:
@@ -147,12 +141,8 @@ def frame_metrics(
         bn = _vertex_normals_np(b, bf)
     else:
         bn = _np32(body_normals)
-    if body_index_hint is not None and body_neighbors is not None:
-        bidx_t, bdist_t = refine_nearest(x, b, body_index_hint, body_neighbors)
-        bidx, bdist = bidx_t.numpy(), bdist_t.numpy()
-    else:
-        tree = body_tree if body_tree is not None else build_tree(b)
-        bdist, bidx = tree.query(x, k=1, workers=workers)
+    tree = body_tree if body_tree is not None else build_tree(b)
+    bdist, bidx = tree.query(x, k=1, workers=workers)
     d_body = _signed(x, b, bn, bidx)
     body_pen = d_body < 0.0
 

@@ -112,19 +112,3 @@ def test_bend_strain_nan_and_sequence(body):
     assert math.isclose(seq["bend"], m2.values["bend"], rel_tol=1e-6)
     assert math.isclose(seq["nan"], 1 / 3) and seq["first_exploded_frame"] == 1.0
     assert seq["strain_max_max"] == m2.values["strain_max"]
-
-
-def test_body_index_hint_matches_tree(body, shell):
-    from smln.geometry import vertex_neighbors
-
-    b, bf = body
-    rest, (u,) = stack(shell, [1.01])
-    x = np.where((u[:, 2] > 0.3)[:, None], u * 0.99, u * 1.01)
-    exact = frame_metrics(x, b, rest, body_faces=bf)
-    moved = b + torch.tensor([0.004, 0.0, 0.0])
-    m = frame_metrics(
-        x, moved, rest, body_faces=bf, body_index_hint=exact.body_index, body_neighbors=vertex_neighbors(bf)
-    )
-    m_tree = frame_metrics(x, moved, rest, body_faces=bf)
-    np.testing.assert_array_equal(m.body_index, m_tree.body_index)
-    assert m.values == m_tree.values

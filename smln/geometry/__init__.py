@@ -5,8 +5,7 @@ Mesh (torch, differentiable, batched over leading dims): :func:`face_normals`, :
 :func:`dihedral_angles`, :func:`vertex_neighbors`.
 
 Proximity (scipy cKDTree; indices without gradient, distances differentiable): :func:`build_tree`,
-:func:`nearest_vertices`, :func:`refine_nearest` (greedy walk from a hint),
-:func:`signed_distance_along_normals`, :func:`close_pairs`.
+:func:`nearest_vertices`, :func:`signed_distance_along_normals`, :func:`close_pairs`.
 """
 
 from smln.geometry.mesh import (
@@ -24,7 +23,6 @@ from smln.geometry.proximity import (
     build_tree,
     close_pairs,
     nearest_vertices,
-    refine_nearest,
     signed_distance_along_normals,
 )
 
@@ -38,7 +36,6 @@ __all__ = [
     "hinge_normals",
     "interior_edges",
     "nearest_vertices",
-    "refine_nearest",
     "signed_distance_along_normals",
     "unique_edges",
     "vertex_neighbors",
