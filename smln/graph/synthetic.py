@@ -118,3 +118,22 @@ def rigid_lbs(points: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
     r = transforms[:, 0, :3, :3]
     tr = transforms[:, 0, :3, 3]
     return torch.einsum("tij,nj->tni", r, points) + tr[:, None, :]
+
+
+def cylinder_body(radius: float = 0.1, height: float = 1.2, n_around: int = 120, n_rings: int = 100) -> tuple[
+    np.ndarray, np.ndarray
+]:
+    """A closed cylinder standing on z = 0 (side ``tube`` plus two cap centres): a body of exactly
+    ``n_around * n_rings + 2`` vertices for benchmarks.
+
+    Returns: vertices (Vb, 3) float32, faces (Fb, 3) int64 (outward).
+    """
+    v, f = tube(radius, height, n_around, n_rings)
+    n = len(v)
+    centres = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, height]], np.float32)
+    a = np.arange(n_around)
+    b = (a + 1) % n_around
+    top = (n_rings - 1) * n_around
+    bottom = np.stack([np.full(n_around, n), b, a], 1)
+    cap = np.stack([np.full(n_around, n + 1), top + a, top + b], 1)
+    return np.concatenate([v, centres]), np.concatenate([f, bottom, cap]).astype(np.int64)
