@@ -99,7 +99,7 @@ def _torso_fields(lm: Landmarks, kind: str, h: float) -> list[Field]:
         "tshirt": lm.hips_z - 0.06,
         "longsleeve": lm.hips_z - 0.05,
         "tanktop": lm.hips_z - 0.03,
-        "jacket": lm.hips_z - 0.14,
+        "jacket": max(lm.hips_z - 0.08, lm.crotch_z + 0.04),
         "dress": lm.waist_z,
     }[kind]
     fields: list[Field] = [lambda p: hem - p[:, 2]]
@@ -177,14 +177,21 @@ def _radial_extent(body: Body, centre: np.ndarray, z: np.ndarray, n_theta: int, 
     for k, zk in enumerate(z):  # loops over rings (tens), vectorised within
         sel = np.abs(v[:, 2] - zk) < dz
         np.maximum.at(out[k], th[sel], r[sel])
-    # fill empty bins with the circular max of their neighbours, then smooth circularly
-    for _ in range(4):
+    # fill empty bins with the circular max of their neighbours
+    for _ in range(6):
         nb = np.maximum(np.roll(out, 1, axis=1), np.roll(out, -1, axis=1))
         out = np.where(out > 0, out, nb)
-    kernel = np.array([0.25, 0.5, 0.25])
-    for _ in range(3):
-        out = np.maximum(out, sum(w * np.roll(out, s, axis=1) for w, s in zip(kernel, (-1, 0, 1), strict=True)))
     return out
+
+
+def _smooth_above(ext: np.ndarray, sigma_theta: float = 4.0, sigma_z: float = 1.5) -> np.ndarray:
+    """A smooth (Gaussian along angle, wrapping, and along height) profile lifted per ring to stay >= ``ext``."""
+    from scipy.ndimage import gaussian_filter1d
+
+    g = gaussian_filter1d(ext, sigma_theta, axis=1, mode="wrap")
+    g = gaussian_filter1d(g, sigma_z, axis=0, mode="nearest")
+    g = g + np.max(ext - g, axis=1, keepdims=True)
+    return np.maximum.accumulate(g, axis=0)
 
 
 def loft_skirt(
@@ -216,6 +223,7 @@ def loft_skirt(
         np.maximum.at(rb, tb, np.linalg.norm(d, axis=1) - offset)
         ext[0] = np.maximum(ext[0], rb)
     ext = np.maximum.accumulate(ext, axis=0)  # hangs straight down over the widest part above
+    ext = _smooth_above(ext)
     below = np.clip(lm.hips_z - z, 0.0, None)[:, None]
     radius = ext + offset + flare * below
     theta_grid = np.arange(n_theta + 1) / n_theta * 2 * np.pi

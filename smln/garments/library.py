@@ -7,7 +7,9 @@ loading a cached one takes milliseconds.
 
 from __future__ import annotations
 
+import hashlib
 import os
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +29,15 @@ DEFAULT_EDGE_LENGTH = 0.02
 """Default target edge length, m."""
 TRAINING_EDGE_LENGTH = 0.035
 """Coarser target edge length for training, m."""
-CACHE_VERSION = 1
+
+
+@lru_cache(maxsize=1)
+def cache_version() -> str:
+    """Short hash of the garment-building source files: editing them invalidates the cache."""
+    here = Path(__file__).resolve().parent
+    text = b"".join((here / n).read_bytes() for n in ("generators.py", "meshops.py", "regions.py",
+                                                       "skin_transfer.py", "library.py", "garment.py"))
+    return hashlib.sha1(text).hexdigest()[:10]
 
 
 def cache_dir() -> Path:
@@ -93,7 +103,7 @@ def build_garment(
         raise GarmentError(f"edge length {edge_length} m is outside [0.005, 0.1] m")
     spec = SPECS[garment_type]
     offset = spec.offset if offset is None else float(offset)
-    key = f"v{CACHE_VERSION}_{garment_type}_{shape}_h{round(edge_length * 1e4):d}_o{round(offset * 1e4):d}.npz"
+    key = f"{cache_version()}_{garment_type}_{shape}_h{round(edge_length * 1e4):d}_o{round(offset * 1e4):d}.npz"
     path = cache_dir() / key
     if use_cache and path.exists():
         try:
