@@ -91,13 +91,16 @@ def check_scale(v: np.ndarray, path: str | Path = "garment") -> None:
 
 def waist_loops(v: np.ndarray, f: np.ndarray, body) -> list[np.ndarray]:
     """Boundary loops that could be pinned as a waistband: nearly horizontal (height spread < 6 cm), between
-    the crotch and 15 cm above the waist, and going once around the body's vertical axis."""
+    the crotch and 15 cm above the waist, going once around the body's vertical axis, with the garment hanging
+    below it (fewer than 5 % of the vertices more than 2 cm above it: a t-shirt's hem is not a waistband)."""
     lm = landmarks(body)
     centre = np.asarray(lm.centre_xy)
     out = []
     for loop in boundary_loops(f):
         p = v[loop]
         if np.ptp(p[:, 2]) > 0.06 or not (lm.crotch_z < p[:, 2].mean() < lm.waist_z + 0.15):
+            continue
+        if (v[:, 2] > p[:, 2].max() + 0.02).mean() > 0.05:
             continue
         ang = np.arctan2(p[:, 1] - centre[1], p[:, 0] - centre[0])
         winding = np.diff(np.unwrap(np.r_[ang, ang[0]]))
