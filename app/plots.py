@@ -1,0 +1,131 @@
+"""Live metrics: a markdown table for the current frame and uPlot curves over the clip with a cursor line.
+
+The cursor is drawn as a vertical segment: two extra samples at x = current frame are inserted into the
+(sorted) x axis; the variant curves are NaN there (``spanGaps`` bridges them) and the cursor series holds the
+plot's y range there and NaN elsewhere.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import viser
+from viser import uplot
+
+from app.sources import VARIANT_LABELS
+
+PLOT_METRICS: tuple[tuple[str, str, float], ...] = (
+    ("l_coll", "L-Coll (%)", 1.0),
+    ("h_coll", "H-Coll (%)", 1.0),
+    ("strain_mean", "mean strain (%)", 100.0),
+    ("repulsion_mean", "mean |a| (mm/frame^2)", 1000.0),
+)
+"""(metric key, title with unit, factor from the frame's unit to the displayed one)."""
+
+VARIANT_STROKES: dict[str, str] = {
+    "full": "#1f77b4",
+    "no_repulsion_layer": "#d62728",
+    "baseline": "#9467bd",
+    "skinning": "#7f7f7f",
+}
+
+
+def metric_series(frames: list[Any], total: int, key: str, factor: float) -> np.ndarray:
+    """(total,) float64 values of one metric over the computed frames, NaN after them."""
+    out = np.full(total, np.nan)
+    n = min(len(frames), total)
+    if n:
+        out[:n] = [f.metrics.get(key, np.nan) for f in frames[:n]]
+    return out * factor
+
+
+def with_cursor(x: np.ndarray, ys: list[np.ndarray], index: int) -> tuple[np.ndarray, ...]:
+    """uPlot data with a vertical cursor at frame ``index``.
+
+    Args:
+        x: (T,) frame numbers; ys: per variant (T,) values; index: current frame.
+
+    Returns:
+        (x', y'_1, ..., y'_n, cursor) each of length T + 2.
+    """
+    i = int(np.clip(index, 0, len(x) - 1)) + 1
+    finite = np.concatenate([y[np.isfinite(y)] for y in ys] + [np.zeros(1)])
+    lo, hi = float(finite.min()), float(finite.max())
+    hi = hi if hi > lo else lo + 1.0
+    xs = np.insert(x.astype(np.float64), i, [x[i - 1], x[i - 1]])
+    curves = [np.insert(y, i, [np.nan, np.nan]) for y in ys]
+    cursor = np.full(len(xs), np.nan)
+    cursor[i], cursor[i + 1] = lo, hi
+    return (xs, *curves, cursor)
+
+
+class MetricsPanel:
+    """The metric table and curves, in the GUI container current at construction (a folder)."""
+
+    def __init__(self, gui: viser.GuiApi, min_interval: float = 0.1) -> None:
+        self.gui = gui
+        self.table = gui.add_markdown("*no frames yet*")
+        self.plots: dict[str, Any] = {}
+        self.variants: tuple[str, ...] = ()
+        self.total = 0
+        self.min_interval = min_interval
+        self._last = 0.0
+        self._last_key: tuple = ()
+
+    def rebuild(self, variants: list[str], total: int) -> None:
+        """Recreate the plots for a new set of variants or clip length."""
+        if tuple(variants) == self.variants and total == self.total and self.plots:
+            return
+        for h in self.plots.values():
+            h.remove()
+        self.variants, self.total = tuple(variants), total
+        x = np.arange(max(total, 1), dtype=np.float64)
+        series = (
+            uplot.Series(label="frame"),
+            *[uplot.Series(label=VARIANT_LABELS.get(v, v), stroke=VARIANT_STROKES.get(v, "#333"), width=2,
+                           spanGaps=True) for v in variants],
+            uplot.Series(label="now", stroke="#222222", width=1, spanGaps=False),
+        )
+        self.plots = {}
+        for key, title, _ in PLOT_METRICS:
+            data = with_cursor(x, [np.full(len(x), np.nan) for _ in variants], 0)
+            self.plots[key] = self.gui.add_uplot(data, series, title=title, aspect=2.0,
+                                                 scales={"x": uplot.Scale(time=False, auto=True)})
+        self._last_key = ()
+
+    def update(self, caches: dict[str, Any], index: int, force: bool = False) -> None:
+        """Refresh the table for frame ``index`` and the curves (at most every ``min_interval`` s)."""
+        counts = tuple(len(caches[v]) if v in caches else 0 for v in self.variants)
+        key = (index, counts)
+        now = time.monotonic()
+        if not force and (key == self._last_key or now - self._last < self.min_interval):
+            return
+        self._last, self._last_key = now, key
+        self.table.content = self.table_markdown(caches, index)
+        if not self.variants or not self.total:
+            return
+        x = np.arange(self.total, dtype=np.float64)
+        for mkey, _, factor in PLOT_METRICS:
+            ys = [metric_series(caches[v].frames if v in caches else [], self.total, mkey, factor)
+                  for v in self.variants]
+            self.plots[mkey].data = with_cursor(x, ys, index)
+
+    def table_markdown(self, caches: dict[str, Any], index: int) -> str:
+        """Markdown table: one row per variant, L-Coll, H-Coll, strain and mean |a| at frame ``index``."""
+        head = "| variant | L-Coll % | H-Coll % | strain % | mean \\|a\\| mm/f² |\n|---|---:|---:|---:|---:|\n"
+        rows = []
+        for v in self.variants:
+            cache = caches.get(v)
+            f = cache.frames[index] if cache is not None and index < len(cache) else None
+            if f is None:
+                rows.append(f"| {VARIANT_LABELS.get(v, v)} | … | … | … | … |")
+                continue
+            m = f.metrics
+            rows.append(
+                f"| {VARIANT_LABELS.get(v, v)}{' (fallback)' if f.fallback else ''} | {m.get('l_coll', np.nan):.2f} | "
+                f"{m.get('h_coll', np.nan):.2f} | {100 * m.get('strain_mean', np.nan):.2f} | "
+                f"{1000 * m.get('repulsion_mean', np.nan):.3f} |"
+            )
+        return f"**frame {index}**\n\n" + head + "\n".join(rows)

@@ -1,0 +1,77 @@
+"""Launch the SMLN browser viewer.
+
+    python launch_viewer.py [--checkpoints DIR] [--host 127.0.0.1] [--port 8080] [--device cpu|cuda]
+                            [--allow-remote]
+
+Binds to localhost unless ``--allow-remote`` is given (the viewer has no authentication: anyone who can reach
+the port can drive it and upload files). Bodies ship as compact exports, so start-up takes seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description="SMLN viewer: live multi-layer garment rollouts in the browser")
+    p.add_argument("--checkpoints", default="checkpoints",
+                   help="directory holding full/, no_repulsion_layer/, baseline/ checkpoints")
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default: localhost only)")
+    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    p.add_argument("--max-frames", type=int, default=300, help="frames computed per rollout at most")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="allow binding to a non-local interface (no authentication: use on trusted networks)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.host not in LOCAL_HOSTS and not args.allow_remote:
+        print(f"launch_viewer: refusing to bind to {args.host}: the viewer has no authentication. "
+              "Pass --allow-remote to expose it anyway.", file=sys.stderr)
+        return 2
+    if args.host not in LOCAL_HOSTS:
+        print(f"WARNING: binding to {args.host}: anyone who can reach port {args.port} can drive this viewer "
+              "and upload files.", file=sys.stderr)
+    if args.device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            print("launch_viewer: --device cuda but no CUDA device is available", file=sys.stderr)
+            return 2
+
+    t0 = time.perf_counter()
+    from app.server import ViewerApp
+    from app.sources import VARIANT_LABELS, Catalog
+
+    catalog = Catalog(args.checkpoints, device=args.device, max_frames=args.max_frames)
+    if catalog.checkpoints:
+        found = ", ".join(f"{VARIANT_LABELS[v]} ({p})" for v, p in catalog.checkpoints.items())
+        print(f"checkpoints: {found}")
+    else:
+        print(f"no checkpoint found in {args.checkpoints}/ (expected full/, no_repulsion_layer/, baseline/): "
+              "showing skinning-only rollouts")
+    try:
+        app = ViewerApp(host=args.host, port=args.port, catalog=catalog, device=args.device,
+                        max_frames=args.max_frames)
+    except OSError as exc:
+        print(f"launch_viewer: cannot listen on {args.host}:{args.port}: {exc}", file=sys.stderr)
+        return 2
+    print(f"SMLN viewer ready in {time.perf_counter() - t0:.1f} s: open {app.url}  (Ctrl+C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
