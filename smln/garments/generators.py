@@ -52,7 +52,7 @@ SPECS: dict[str, GarmentSpec] = {
         GarmentSpec("tshirt", 0.010, "offset", 4),
         GarmentSpec("longsleeve", 0.010, "offset", 4),
         GarmentSpec("tanktop", 0.009, "offset", 4),
-        GarmentSpec("jacket", 0.022, "offset", 3, loose=True),
+        GarmentSpec("jacket", 0.028, "offset", 3, loose=True),
         GarmentSpec("trousers", 0.014, "offset", 3, pinned_waist=True),
         GarmentSpec("shorts", 0.012, "offset", 3, pinned_waist=True),
         GarmentSpec("leggings", 0.006, "offset", 3, pinned_waist=True),

@@ -20,7 +20,7 @@ from smln.cloth import Cloth, Material
 from smln.garments.garment import Garment, GarmentError
 from smln.garments.generators import SPECS
 from smln.garments.library import DEFAULT_EDGE_LENGTH, build_garment
-from smln.garments.meshops import push_out, signed_gap, vertex_normals_np
+from smln.garments.meshops import laplacian_smooth, push_out, signed_gap, vertex_normals_np
 
 MANIFEST = Path(__file__).resolve().parent.parent / "data" / "outfits.json"
 LAYER_GAP = 0.008
@@ -126,6 +126,13 @@ class Outfit:
         return place_layer(self, garment, index)
 
 
+def _push_all(x: np.ndarray, under: list[tuple[np.ndarray, np.ndarray, float]]) -> np.ndarray:
+    """Push points out of each (vertices, normals, clearance) surface in turn."""
+    for v, n, clearance in under:
+        x = push_out(x, v, n, clearance)
+    return x
+
+
 def settle_layers(layers: list[Garment], shape: str) -> list[Garment]:
     """Push each layer out of the body and of every layer beneath it (rest state without penetration)."""
     body = load_body(shape)
@@ -138,10 +145,20 @@ def settle_layers(layers: list[Garment], shape: str) -> list[Garment]:
             inner_v = np.concatenate([h.vertices.astype(np.float64) for h in out])
             inner_n = np.concatenate([_normals(h) for h in out])
             adj_v, adj_n = out[-1].vertices.astype(np.float64), _normals(out[-1])
-            for _ in range(3):
-                x = push_out(x, adj_v, adj_n, LAYER_CLEARANCE)
-                x = push_out(x, inner_v, inner_n, LAYER_CLEARANCE)
-                x = push_out(x, bv, bn, BODY_CLEARANCE)
+            under = [(adj_v, adj_n, LAYER_CLEARANCE), (inner_v, inner_n, LAYER_CLEARANCE), (bv, bn, BODY_CLEARANCE)]
+
+            # spread the push-out displacement over the mesh (a soft bulge instead of single-vertex ruffles),
+            # then finish with the exact per-vertex push
+            for _ in range(4):
+                d = _push_all(x, under) - x
+                if not d.any():
+                    break
+                x = x + 1.3 * laplacian_smooth(d, g.faces, iterations=8, alpha=0.5, taubin=False)
+            for _ in range(12):
+                y = _push_all(x, under)
+                if np.array_equal(y, x):
+                    break
+                x = y
         out.append(g.with_vertices(x) if not np.array_equal(x, g.vertices) else g)
     return out
 
