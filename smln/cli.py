@@ -50,7 +50,7 @@ def _cmd_body(args: argparse.Namespace) -> None:
 
 
 def _cmd_outfits(args: argparse.Namespace) -> None:
-    from smln.garments import outfits_table
+    from smln.garments.export import outfits_table
 
     rows = outfits_table()
     if args.json:
@@ -62,7 +62,7 @@ def _cmd_outfits(args: argparse.Namespace) -> None:
 
 
 def _cmd_outfit(args: argparse.Namespace) -> None:
-    from smln.garments import export_outfit
+    from smln.garments.export import export_outfit
 
     out = Path(args.out)
     _refuse_overwrite(out, args.force)

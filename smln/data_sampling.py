@@ -45,6 +45,21 @@ class Scene:
         return self.body.num_frames
 
 
+def outfit_names(split: str | None = None) -> list[str]:
+    """Registered outfits of a split: ``"train"``, ``"held_out"``/``"test"`` (both held-out kinds),
+    ``"test_seen"``, ``"test_unseen"``, or all (None)."""
+    from smln.garments import outfit_registry
+
+    reg = outfit_registry()
+    if split is None:
+        return list(reg)
+    if split in ("test", "held_out"):
+        return [n for n, o in reg.items() if o["split"] != "train"]
+    if split not in ("train", "test_seen", "test_unseen"):
+        raise ValueError(f"unknown outfit split {split!r}")
+    return [n for n, o in reg.items() if o["split"] == split]
+
+
 def build_cloth(outfit: str, shape: str, edge_length: float) -> Cloth:
     """The flat cloth of a named outfit (or a user's garments) on a body shape."""
     from smln.garments import build_outfit

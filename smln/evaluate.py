@@ -155,16 +155,16 @@ def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
 
 def resolve_names(spec: list[str] | None, kind: str) -> list[str]:
     """Outfit or clip names from a split name (train/test, seen/unseen) or explicit names."""
-    from smln.garments import outfit_names
+    from smln.data_sampling import outfit_names
     from smln.motion import list_clips
 
     if not spec:
         spec = ["seen"] if kind == "outfits" else ["test"]
     if kind == "outfits":
-        if spec in (["seen"], ["unseen"], ["all"]):
-            return outfit_names({"seen": "train", "unseen": "test", "all": None}[spec[0]])
-        if spec in (["train"], ["test"]):
-            return outfit_names(spec[0])
+        aliases = {"seen": "train", "unseen": "held_out", "all": None, "train": "train", "test": "held_out",
+                   "held_out": "held_out", "test_seen": "test_seen", "test_unseen": "test_unseen"}
+        if len(spec) == 1 and spec[0] in aliases:
+            return outfit_names(aliases[spec[0]])
         return spec
     if spec in (["train"], ["test"]):
         return list_clips(spec[0])
@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     text = [f"Outfits: {', '.join(outfits)}; clips: {', '.join(motions)}; shape {a.shape}; "
             f"frames {a.frames or 'full clip'}\n",
             markdown_table(aggregate(results), "Per method (paper Tables 1 and 3)")]
-    unseen = [r for r in results if r.split == "test"]
+    unseen = [r for r in results if r.split != "train"]
     if unseen:
         text.append(markdown_table(aggregate(unseen, key="outfit"), "Per unseen outfit (paper Table 2)"))
     report = "\n".join(text)

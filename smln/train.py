@@ -5,8 +5,8 @@ initialises the garments by skinning (x_{t-1}, x_t from the skinned frames t0-1,
 autoregressively. After every step the losses of Eq. 17 (+ inertia and body collision) are back-propagated
 through that one step and the optimiser steps; the history is detached (HOOD). The episode length grows during
 training (``rollout_start`` -> ``rollout_max``), so later episodes train on the model's own long-rollout states,
-which is what long rollouts need to stay stable. A fixed 90-frame validation rollout on a training clip is
-tracked; the best checkpoint by that rollout is kept.
+which is what long rollouts need to stay stable. A fixed validation rollout on a training clip is
+tracked (120 frames); the best checkpoint by that rollout is kept.
 
 Run ``smln train --variant full --minutes 60 --out runs/full``; ``--resume`` continues bit-for-bit from the last
 saved state (model, optimiser, normaliser statistics, RNG streams, step). Under
@@ -65,9 +65,9 @@ class TrainConfig:
     noise_std: float = 0.003
     save_every: int = 250
     validate_every: int = 500
-    validation_frames: int = 90
+    validation_frames: int = 120
     validation_outfit: str | None = None
-    validation_motion: str = "02_01_walk"
+    validation_motion: str = "06_01_walk"
     log_every: int = 10
     threads: int = 1
     model: dict[str, Any] = field(default_factory=dict)
@@ -106,7 +106,7 @@ class EpisodeSampler:
     """Draws (outfit, shape, clip, start frame, length) from a seeded numpy generator."""
 
     def __init__(self, cfg: TrainConfig, seed: int) -> None:
-        from smln.garments import outfit_names
+        from smln.data_sampling import outfit_names
         from smln.motion import list_clips
 
         self.outfits = cfg.outfits or outfit_names("train")
@@ -189,14 +189,26 @@ class Trainer:
         terms["repulsion_mean"] = float(a.detach().norm(dim=-1).mean())
         return x_next.detach(), terms
 
+    def _agree(self, value: float, op: str) -> float:
+        """The same value on every rank (min or max), so all ranks take the same number of optimiser steps."""
+        if not self.distributed:
+            return value
+        import torch.distributed as dist
+
+        t = torch.tensor([value], dtype=torch.float64)
+        dist.all_reduce(t, op=dist.ReduceOp.MIN if op == "min" else dist.ReduceOp.MAX)
+        return float(t.item())
+
     def run_episode(self) -> list[dict[str, float]]:
         scene, start, length = self.sampler.draw(self.step, self.cache)
+        length = int(self._agree(length, "min"))
         x_prev, x_cur = scene.skinned[start - 1].clone(), scene.skinned[start].clone()
         logs = []
         for k in range(length):
             t = start + k
             x_next, terms = self.train_step(scene, t, x_prev, x_cur)
-            if not torch.isfinite(x_next).all() or (x_next - scene.skinned[t + 1]).norm(dim=-1).max() > 1.0:
+            bad = not torch.isfinite(x_next).all() or (x_next - scene.skinned[t + 1]).norm(dim=-1).max() > 1.0
+            if self._agree(float(bad), "max") > 0:
                 terms["reset"] = 1.0
                 logs.append(terms)
                 break  # diverged: start a fresh episode from skinning

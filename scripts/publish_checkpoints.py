@@ -1,0 +1,107 @@
+"""Copy trained runs into ``checkpoints/<variant>/`` with their model cards (JSON + markdown).
+
+    python scripts/publish_checkpoints.py --runs runs --which best [--eval-json results.json]
+
+For each variant (full, no_repulsion_layer, baseline) it copies ``runs/<variant>/<which>.safetensors`` to
+``checkpoints/<variant>/model.safetensors``, writes ``card.json`` (the training card, plus the evaluation figures
+of that variant when ``--eval-json`` from ``smln eval --json`` is given) and a short ``README.md`` model card.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+DESCRIPTIONS = {
+    "full": "repulsion layer + repulsion loss (the paper's full model, Table 3 last row)",
+    "no_repulsion_layer": "repulsion loss only, no repulsion layer (Table 3 'W/o repulsion')",
+    "baseline": "neither repulsion layer nor repulsion loss (Table 3 'W/o loss and repulsion')",
+}
+
+
+def eval_summary(results: list[dict], method: str) -> dict[str, float]:
+    rows = [r for r in results if r["method"] == method]
+    if not rows:
+        return {}
+    w = np.array([r["metrics"]["num_frames"] for r in rows])
+    keys = ("l_coll", "h_coll", "bend", "collision_loss", "strain_mean", "ms_model")
+    out = {k: float(np.average([r["metrics"][k] for r in rows], weights=w)) for k in keys}
+    out["strain_max"] = float(max(r["metrics"]["strain_max_max"] for r in rows))
+    out["fallback_frames"] = float(sum(r["metrics"].get("fallback_frames", 0) for r in rows))
+    out["frames"] = float(w.sum())
+    out["outfits"] = sorted({r["outfit"] for r in rows})
+    out["motions"] = sorted({r["motion"] for r in rows})
+    return out
+
+
+def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[dict] | None) -> Path:
+    from smln.checkpoint import load_checkpoint
+
+    src_card = run_dir / f"{which}.json"
+    card = json.loads(src_card.read_text())
+    out = dest / variant
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
+    card["tensors_file"] = "model.safetensors"
+    card["description"] = DESCRIPTIONS[variant]
+    if results:
+        card["evaluation"] = eval_summary(results, variant)
+    (out / "card.json").write_text(json.dumps(card, indent=2, sort_keys=True))
+    load_checkpoint(out)  # validates what was written
+    tr = card.get("training", {})
+    ev = card.get("evaluation", {})
+    md = [
+        f"# SMLN checkpoint `{variant}`",
+        "",
+        f"{DESCRIPTIONS[variant]}.",
+        "",
+        "Trained self-supervised (physics losses only, no garment data) on the training split of outfits and CMU",
+        "clips; see `docs/RESULTS.md` for the tables and `card.json` for every setting.",
+        "",
+        f"- steps: {tr.get('steps')}, wall time: {tr.get('wall_time_s')} s, processes: {tr.get('processes')}, "
+        f"device: {tr.get('device')}",
+        f"- hardware: {tr.get('hardware')}, torch {tr.get('torch')}",
+        f"- architecture: {json.dumps(card.get('config'))}",
+        f"- loss weights: {json.dumps(card.get('loss_weights'))}",
+    ]
+    if "validation" in card:
+        md.append(f"- validation rollout at selection: {json.dumps(card['validation'])}")
+    if ev:
+        md += [
+            "",
+            "## Evaluation (test clips, never seen in training)",
+            "",
+            f"outfits: {', '.join(ev['outfits'])}; clips: {', '.join(ev['motions'])}; {int(ev['frames'])} frames",
+            "",
+            "| L-Coll % | H-Coll % | Bend | Collision loss (mm²) | strain mean % | strain max % | ms/frame "
+            "| fallback frames |",
+            "|---|---|---|---|---|---|---|---|",
+            f"| {ev['l_coll']:.2f} | {ev['h_coll']:.2f} | {ev['bend']:.4f} | {ev['collision_loss'] * 1e6:.3f} | "
+            f"{100 * ev['strain_mean']:.2f} | {100 * ev['strain_max']:.1f} | {ev['ms_model']:.0f} | "
+            f"{int(ev['fallback_frames'])} |",
+        ]
+    md += ["", "Load it with `smln.checkpoint.load_checkpoint(\"checkpoints/" + variant + "\")` (safetensors, no code "
+           "is executed)."]
+    (out / "README.md").write_text("\n".join(md) + "\n")
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", default="runs")
+    p.add_argument("--which", default="best", choices=["best", "last"])
+    p.add_argument("--dest", default="checkpoints")
+    p.add_argument("--eval-json")
+    p.add_argument("--variants", nargs="+", default=list(DESCRIPTIONS))
+    a = p.parse_args()
+    results = json.loads(Path(a.eval_json).read_text()) if a.eval_json else None
+    for v in a.variants:
+        print(publish(Path(a.runs) / v, v, a.which, Path(a.dest), results))
+
+
+if __name__ == "__main__":
+    main()
