@@ -57,8 +57,8 @@ def _cmd_outfits(args: argparse.Namespace) -> None:
         print(json.dumps(rows, indent=1))
         return
     for r in rows:
-        layers = " + ".join(f"{layer['name']}({layer['vertices']}v)" for layer in r["layers"])
-        print(f"{r['name']:28s} {r['split']:7s} {layers}")
+        layers = " + ".join(f"{layer['type']} ({layer['vertices']} v)" for layer in r["layers"])
+        print(f"{r['name']:26s} {r['split']:12s} {r['vertices']:6d} v {r['faces']:6d} f   {layers}")
 
 
 def _cmd_outfit(args: argparse.Namespace) -> None:
