@@ -17,6 +17,7 @@ from app.sources import VARIANT_LABELS, VARIANTS, Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, MAX_OBJ_BYTES
 
 SPEEDS: tuple[str, ...] = ("0.25x", "0.5x", "1x", "2x")
+STEPS: tuple[str, ...] = ("◀ -10", "◀ -1", "+1 ▶", "+10 ▶")
 
 
 @dataclass
@@ -31,8 +32,7 @@ class Controls:
     checkpoint_note: Any
     play: Any
     frame: Any
-    step_back: Any
-    step_forward: Any
+    steps: Any
     speed: Any
     loop: Any
     stream_fps: Any
@@ -88,8 +88,7 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
     with gui.add_folder("Playback"):
         play = gui.add_button("Pause", icon=None)
         frame = gui.add_slider("Frame", min=0, max=1, step=1, initial_value=0)
-        step_back = gui.add_button("◀ step")
-        step_forward = gui.add_button("step ▶")
+        steps = gui.add_button_group("Step", STEPS)
         speed = gui.add_button_group("Speed", SPEEDS)
         loop = gui.add_checkbox("Loop", True)
         stream_fps = gui.add_slider("Stream fps", min=5, max=30, step=5, initial_value=30,
@@ -123,8 +122,8 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
         downloads = {fmt: gui.add_button(text) for fmt, text in
                      (("npz", "Download NPZ"), ("obj", "Download OBJ zip"), ("pc2", "Download PC2"),
                       ("glb", "Download GLB zip"))}
-    return Controls(outfit, clip, shape, upload_bvh, upload_obj, checkpoint_note, play, frame, step_back,
-                    step_forward, speed, loop, stream_fps, progress, status, follow, reset_camera, boxes, layer_pen,
+    return Controls(outfit, clip, shape, upload_bvh, upload_obj, checkpoint_note, play, frame, steps, speed, loop,
+                    stream_fps, progress, status, follow, reset_camera, boxes, layer_pen,
                     body_pen, vectors, vector_scale, vector_threshold, wireframe, body, layers_folder,
                     metrics_folder, export_variant, downloads, outfit_keys, clip_keys)
 

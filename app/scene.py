@@ -162,7 +162,7 @@ class VariantView:
         else:
             _set(self.vectors, "visible", False)
         lo, hi = body.min(axis=0), body.max(axis=0)
-        self.label.position = (float(0.5 * (lo[0] + hi[0])), float(0.5 * (lo[1] + hi[1])), float(hi[2] + 0.12))
+        self.label.position = (float(0.5 * (lo[0] + hi[0])), float(0.5 * (lo[1] + hi[1])), float(hi[2] + 0.25))
         self.shown_index = int(frame.index)
 
     def remove(self) -> None:

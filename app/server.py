@@ -17,6 +17,7 @@ import functools
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -166,11 +167,15 @@ class ViewerApp:
             self._dirty = True
 
     def available_frames(self) -> int:
-        """Frames computed by the leading enabled variant (0 before the scenario is ready)."""
+        """Frames playable on the shared timeline: computed by every enabled variant (a variant that stopped on
+        an error no longer holds the others back; 0 before the scenario is ready)."""
         if not self.worker.ready():
             return 0
-        caches = self.worker.caches
-        return max((len(caches[v]) for v in self._variants if v in caches), default=0)
+        caches = [self.worker.caches.get(v) for v in self._variants]
+        if any(c is None for c in caches):
+            return 0
+        running = [len(c) for c in caches if not c.error]
+        return min(running) if running else max((len(c) for c in caches), default=0)
 
     def seek(self, index: int) -> int:
         """Show frame ``index`` (clamped to the computed frames); returns the frame shown."""
@@ -239,8 +244,7 @@ class ViewerApp:
         c.upload_obj.on_upload(self._on_upload_obj)
         c.play.on_click(self._on_play)
         c.frame.on_update(self._on_frame)
-        c.step_back.on_click(lambda e: self._on_step(e, -1))
-        c.step_forward.on_click(lambda e: self._on_step(e, 1))
+        c.steps.on_click(self._on_step)
         c.speed.on_click(self._on_speed)
         c.loop.on_update(self._on_loop)
         c.stream_fps.on_update(self._on_stream_fps)
@@ -332,8 +336,8 @@ class ViewerApp:
             self.seek(int(self.controls.frame.value))
 
     @_guarded
-    def _on_step(self, event: Any, delta: int) -> None:
-        self.step(delta)
+    def _on_step(self, event: Any) -> None:
+        self.step(int(str(self.controls.steps.value).strip("◀▶ ")))
 
     @_guarded
     def _on_speed(self, event: Any) -> None:
@@ -434,6 +438,9 @@ class ViewerApp:
         caches = self.worker.caches
         n = self.available_frames()
         all_done = all(v in caches and caches[v].done for v in variants)
+        if self.frame_index > max(n - 1, 0):  # a variant was added: wait for it on the shared timeline
+            self.frame_index = max(n - 1, 0)
+            self._dirty = True
         if self.playing and n:
             clock += dt * FPS * self.speed
             steps = int(clock)
@@ -535,7 +542,8 @@ class ViewerApp:
             if np.abs(delta).max() > 1e-3:
                 for client in self.server.get_clients().values():
                     cam = client.camera
-                    with client.atomic():
+                    with client.atomic(), warnings.catch_warnings():
+                        warnings.simplefilter("ignore")  # a browser that is just leaving
                         cam.position = tuple(np.asarray(cam.position) + delta)
                         cam.look_at = tuple(np.asarray(cam.look_at) + delta)
                 self._last_centre = centre

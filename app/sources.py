@@ -94,8 +94,9 @@ def outfit_builder() -> tuple[Callable[[str, str], Cloth], list[tuple[str, str]]
 
 
 def find_checkpoints(directory: str | Path | None) -> dict[str, Path]:
-    """Checkpoints of the three model variants under ``directory`` (``full/``, ``no_repulsion_layer/``,
-    ``baseline/``, each holding a ``.safetensors`` file and its ``.json`` card).
+    """Checkpoints of the three model variants under ``directory``: ``full/``, ``no_repulsion_layer/``,
+    ``baseline/``, each a folder holding a ``.safetensors`` file and its ``.json`` card (or ``full.safetensors``
+    + ``full.json`` ... directly in ``directory``).
 
     Returns:
         variant -> path to pass to :func:`smln.checkpoint.load_checkpoint` (only variants that exist).
@@ -106,6 +107,9 @@ def find_checkpoints(directory: str | Path | None) -> dict[str, Path]:
     root = Path(directory)
     for variant in VARIANTS[:3]:
         d = root / variant
+        if d.with_suffix(".safetensors").exists() and d.with_suffix(".json").exists():
+            found[variant] = d.with_suffix(".safetensors")  # a stem: <dir>/<variant>.safetensors + .json
+            continue
         if not d.is_dir():
             continue
         if (d / "model.safetensors").exists():
