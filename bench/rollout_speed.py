@@ -1,13 +1,19 @@
-"""Speed of the SMLN step on a synthetic 2-layer outfit (tubes around a cylinder body).
+"""Speed of the SMLN step on the real outfits (or a synthetic scene with ``--synthetic``).
 
-Measures, with 1 and 2 torch threads: the median ms/frame of one inference step (graph build + network +
-repulsion layer) on a ~5k-vertex 2-layer outfit around a 12k-vertex body, the share of each stage, and the
-time of one training step (forward, a simple physics loss, backward, Adam step) on a ~1.5k-vertex outfit.
-Prints JSON (and writes it with ``--json OUT``).
+Measures, with 1 and 2 torch threads (each median of ``--repeats`` timings):
 
-    python bench/rollout_speed.py [--json OUT] [--vertices N] [--repeats R]
+- inference: median ms/frame of a full :func:`smln.rollout.rollout` frame (graph build + network + repulsion
+  layer + per-frame metrics) on a 2-layer ~5k-vertex outfit (``tshirt_jacket`` at 2 cm, 4.8k vertices) and a
+  3-layer outfit (``tanktop_tshirt_jacket``, 6.4k vertices) on the ``02_01_walk`` clip, plus the per-stage
+  times and shares (graph build, network, repulsion layer, metrics) measured on one frame's state;
+- training: median time of one training step (graph build, forward, the full loss of
+  :func:`smln.losses.total_loss`, backward, gradient clipping, Adam) on a coarse 2-layer outfit
+  (``tshirt_jacket`` at 3.5 cm).
 
-The scene is synthetic for now; switch to the real outfits once ``smln.garments`` ships them.
+Prints JSON (and writes it with ``--json OUT``), including the 1-minute load average before and after (the
+machine is shared: compare medians taken at similar load).
+
+    python bench/rollout_speed.py [--json OUT] [--repeats R] [--threads 1 2] [--synthetic]
 """
 
 from __future__ import annotations
@@ -15,30 +21,61 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import statistics
 import time
+from typing import Any
 
+import numpy as np
 import torch
 
-from smln.graph.synthetic import cylinder_body, rigid_lbs, sway_motion, tube_outfit
-from smln.losses.gravity import gravity_energy
-from smln.losses.inertia import inertia_energy
-from smln.losses.rest import ClothRest
-from smln.losses.stretch import stretch_energy
+from smln.cloth import Cloth
+from smln.geometry import vertex_normals
+from smln.losses import BodyStep, ClothRest, layer_pairs, total_loss
+from smln.metrics import frame_metrics
 from smln.model import SMLN, SMLNConfig
+from smln.rollout import rollout
+
+INFER_OUTFITS = ("tshirt_jacket", "tanktop_tshirt_jacket")  # 2 layers ~4.8k vertices, 3 layers ~6.4k
+TRAIN_OUTFIT = "tshirt_jacket"
+MOTION = "02_01_walk"
 
 
-def _scene(vertices: int, body_rings: int = 100, frames: int = 4):
-    """2-layer tube outfit of about ``vertices`` vertices (2 cm-ish spacing) on a 12k-vertex body."""
+class Scene:
+    """An outfit on a body clip: ``cloth``, ``body`` (T, Vb, 3), ``transforms``, ``faces`` (Fb, 3)."""
+
+    def __init__(self, name: str, cloth: Cloth, body: torch.Tensor, transforms: torch.Tensor, faces: torch.Tensor):
+        self.name, self.cloth, self.body, self.transforms, self.faces = name, cloth, body, transforms, faces
+
+    @property
+    def vertices(self) -> torch.Tensor:  # rollout() reads .vertices / .transforms
+        return self.body
+
+
+def real_scene(outfit: str, edge_length: float, frames: int) -> Scene:
+    from smln.body import load_body
+    from smln.garments import build_outfit
+    from smln.motion import load_body_sequence
+
+    body = load_body("female_average")
+    seq = load_body_sequence(MOTION, body, max_frames=frames)
+    cloth = build_outfit(outfit, shape="female_average", edge_length=edge_length).to_cloth()
+    return Scene(f"{outfit}@{edge_length}", cloth, seq.vertices, seq.transforms, seq.faces)
+
+
+def synthetic_scene(vertices: int, frames: int) -> Scene:
+    """2-layer tube outfit of about ``vertices`` vertices (2 cm-ish spacing) around a 12k-vertex cylinder."""
+    from smln.graph.synthetic import cylinder_body, rigid_lbs, sway_motion, tube_outfit
+
     per_layer = vertices / 2
     n_around = max(8, int(round(math.sqrt(per_layer * 1.6))))
     n_rings = max(3, int(round(per_layer / n_around)))
-    height = 0.02 * n_rings
-    cloth = tube_outfit(radii=(0.12, 0.126), height=height, n_around=n_around, n_rings=n_rings, z0=0.2)
-    bv, bf = cylinder_body(n_around=120, n_rings=body_rings)
+    cloth = tube_outfit(radii=(0.12, 0.126), height=0.02 * n_rings, n_around=n_around, n_rings=n_rings, z0=0.2)
+    bv, bf = cylinder_body(n_around=120, n_rings=100)
     tr = sway_motion(frames)
-    return cloth, rigid_lbs(torch.as_tensor(bv), tr), rigid_lbs(cloth.rest_vertices, tr)
+    return Scene(f"synthetic_tubes_{cloth.num_vertices}", cloth, rigid_lbs(torch.as_tensor(bv), tr), tr,
+                 torch.as_tensor(bf))
 
 
 def _median_ms(fn, repeats: int) -> float:
@@ -51,78 +88,117 @@ def _median_ms(fn, repeats: int) -> float:
     return statistics.median(ts)
 
 
-def inference(model: SMLN, vertices: int, repeats: int) -> dict:
-    cloth, body, xs = _scene(vertices)
-    topo = model.make_topology(cloth)
+def _skinned(scene: Scene, n: int) -> torch.Tensor:
+    from smln.body import lbs
+
+    c = scene.cloth
+    return lbs(c.rest_vertices.float(), c.skin_indices, c.skin_weights, torch.as_tensor(scene.transforms[:n]).float())
+
+
+def inference(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
+    """ms/frame of real rollout frames, and per-stage medians on one frame's state."""
     model.eval()
+    frames = repeats + 4
+    ms = []
+    t_prev = time.perf_counter()
+    for fr in rollout(model, scene.cloth, scene, scene.faces, num_frames=frames, fallback=True):
+        t = time.perf_counter()
+        if fr.index >= 3:  # frames 0, 1 are skinned; frame 2 warms up
+            ms.append(1e3 * (t - t_prev))
+        t_prev = t
+    topo = model.make_topology(scene.cloth)
+    rest = ClothRest.from_cloth(scene.cloth)
+    xs = _skinned(scene, 3)
+    body = torch.as_tensor(scene.body).float()
     args = (xs[0], xs[1], body[1], body[2], xs[2])
+    faces_np = np.asarray(scene.faces, dtype=np.int64)
     with torch.no_grad():
         g = topo.build(*args)
-        p, _, ex = model(g, topo)
+        _, _, ex = model(g, topo)
         x_hat = ex["x_hat"]
-        from smln.geometry import vertex_normals
-
         build = _median_ms(lambda: topo.build(*args), repeats)
-        total = _median_ms(lambda: model(topo.build(*args), topo), repeats)
         forward = _median_ms(lambda: model(g, topo), repeats)
         rep = _median_ms(
             lambda: model.repulsion(g.x_cur, x_hat, vertex_normals(x_hat, topo.faces), g.repulsion_pairs), repeats
         )
+        metrics = _median_ms(lambda: frame_metrics(ex["x_next"], body[2], rest, body_faces=faces_np), repeats)
     net = max(forward - rep, 0.0)
-    s = build + forward
+    s = build + forward + metrics
     return {
-        "vertices": cloth.num_vertices,
+        "scene": scene.name,
+        "layers": scene.cloth.num_layers,
+        "vertices": scene.cloth.num_vertices,
         "body_vertices": int(body.shape[1]),
         "mesh_edges": int(topo.mesh_edges.shape[1]),
         "virtual_edges": int(g.virtual_edges.shape[1]),
         "body_edges": int(g.body_receivers.numel()),
         "anchor_nodes": [lv.num_nodes for lv in topo.levels],
         "anchor_edges": [int(lv.edges.shape[1]) for lv in topo.levels],
-        "ms_per_frame": round(total, 2),
+        "ms_per_frame_rollout": round(statistics.median(ms), 2),
+        "ms_per_frame_step": round(build + forward, 2),
         "ms_graph_build": round(build, 2),
         "ms_network": round(net, 2),
         "ms_repulsion": round(rep, 2),
-        "share": {k: round(v / s, 3) for k, v in (("graph_build", build), ("network", net), ("repulsion", rep))},
+        "ms_metrics": round(metrics, 2),
+        "share": {k: round(v / s, 3) for k, v in
+                  (("graph_build", build), ("network", net), ("repulsion", rep), ("metrics", metrics))},
     }
 
 
-def training_step(model: SMLN, vertices: int, repeats: int) -> dict:
-    cloth, body, xs = _scene(vertices)
-    topo = model.make_topology(cloth)
-    rest = ClothRest.from_cloth(cloth)
+def training_step(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
+    """Median ms of one training step (build, forward, total loss, backward, clip, Adam)."""
+    topo = model.make_topology(scene.cloth)
+    rest = ClothRest.from_cloth(scene.cloth)
+    xs = _skinned(scene, 3)
+    body = torch.as_tensor(scene.body).float()
+    bstep = BodyStep.from_vertices(body[1], body[2], torch.as_tensor(scene.faces, dtype=torch.int64))
+    pairs = layer_pairs(xs[1], rest)
     model.train()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
 
     def step() -> None:
         g = topo.build(xs[0], xs[1], body[1], body[2], xs[2])
         _, _, ex = model(g, topo)
-        x = ex["x_next"]
-        loss = stretch_energy(x, rest) + gravity_energy(x, rest) + inertia_energy(xs[0], xs[1], x, rest, 1 / 30)
+        loss, _ = total_loss(xs[0], xs[1], ex["x_next"], bstep, rest, pairs=pairs)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
 
-    return {"vertices": cloth.num_vertices, "ms_per_step": round(_median_ms(step, repeats), 2)}
+    ms = _median_ms(step, repeats)
+    return {"scene": scene.name, "vertices": scene.cloth.num_vertices, "ms_per_step": round(ms, 2)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", help="write the results here too")
-    ap.add_argument("--vertices", type=int, default=5000, help="inference outfit size (2 layers)")
-    ap.add_argument("--train-vertices", type=int, default=1500, help="training outfit size (2 layers)")
     ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--synthetic", action="store_true", help="synthetic tubes on a cylinder instead of real outfits")
+    ap.add_argument("--vertices", type=int, default=5000, help="--synthetic: inference outfit size (2 layers)")
+    ap.add_argument("--train-vertices", type=int, default=1500, help="--synthetic: training outfit size")
     args = ap.parse_args()
     torch.manual_seed(0)
     cfg = SMLNConfig()
-    out: dict = {"config": cfg.to_dict(), "torch": torch.__version__, "machine": platform.processor() or "cpu"}
-    for threads in (1, 2):
+    frames = args.repeats + 4
+    if args.synthetic:
+        infer = [synthetic_scene(args.vertices, frames)]
+        train = synthetic_scene(args.train_vertices, 4)
+    else:
+        infer = [real_scene(o, 0.02, frames) for o in INFER_OUTFITS]
+        train = real_scene(TRAIN_OUTFIT, 0.035, 4)
+    out: dict[str, Any] = {
+        "config": cfg.to_dict(), "torch": torch.__version__, "machine": platform.processor() or "cpu",
+        "cpus": os.cpu_count(), "load_before": round(os.getloadavg()[0], 2),
+    }
+    for threads in args.threads:
         torch.set_num_threads(threads)
         model = SMLN(cfg)
         out[f"threads_{threads}"] = {
-            "inference": inference(model, args.vertices, args.repeats),
-            "training": training_step(model, args.train_vertices, max(5, args.repeats // 2)),
+            "inference": [inference(model, s, args.repeats) for s in infer],
+            "training": training_step(SMLN(cfg), train, max(5, args.repeats // 2)),
         }
+    out["load_after"] = round(os.getloadavg()[0], 2)
     text = json.dumps(out, indent=2)
     print(text)
     if args.json:

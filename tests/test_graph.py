@@ -69,6 +69,51 @@ def test_hierarchy_per_component():
     assert csgraph.connected_components(adj, directed=False)[0] == 2
 
 
+def _components(edges: np.ndarray, m: int) -> int:
+    adj = coo_matrix((np.ones(edges.shape[1]), (edges[0], edges[1])), shape=(m, m))
+    return csgraph.connected_components(adj, directed=False)[0]
+
+
+def test_hierarchy_default_quarter_cluster_edges():
+    """Default: MIS anchors (~1/4 of the nodes per level), anchors joined when their clusters touch."""
+    _, f = tube(0.1, 0.3, 32, 20)
+    n = 32 * 20
+    cur = mesh_edges(f)
+    levels = anchor_hierarchy(cur, n, levels=3)
+    prev, prev_nodes = n, np.arange(n)
+    for lv in levels:
+        m = lv.num_nodes
+        assert 0.15 * prev <= m <= 0.35 * prev
+        assert _components(lv.edges, m) == 1
+        # every node pools to itself or to an adjacent anchor; anchors are never adjacent
+        adj = coo_matrix((np.ones(cur.shape[1]), (cur[0], cur[1])), shape=(prev, prev)).tocsr()
+        anchor_prev = np.searchsorted(prev_nodes, lv.nodes)
+        assert np.array_equal(prev_nodes[anchor_prev], lv.nodes)
+        a = anchor_prev[lv.parent]
+        i = np.arange(prev)
+        assert np.all((a == i) | (np.asarray(adj[i, a]).ravel() > 0))
+        assert adj[anchor_prev][:, anchor_prev].nnz == 0
+        # cluster adjacency: exactly the pairs of distinct parents joined by an edge of the level below
+        ps, pr = lv.parent[cur[0]], lv.parent[cur[1]]
+        want = {(a, b) for a, b in zip(ps, pr, strict=True) if a != b}
+        assert set(zip(lv.edges[0], lv.edges[1], strict=True)) == want
+        assert len(want) == lv.edges.shape[1]  # unique
+        cur, prev, prev_nodes = lv.edges, m, lv.nodes
+    assert anchor_hierarchy(mesh_edges(f), n, levels=3, rule="two_hop", anchors="bfs_even") is not levels
+
+
+def test_hierarchy_two_hop_option_halves():
+    _, f = tube(0.1, 0.3, 32, 20)
+    n = 32 * 20
+    levels = anchor_hierarchy(mesh_edges(f), n, levels=2, rule="two_hop", anchors="bfs_even")
+    assert 0.4 * n <= levels[0].num_nodes <= 0.6 * n
+    deg = [lv.edges.shape[1] / lv.num_nodes for lv in levels]
+    default = anchor_hierarchy(mesh_edges(f), n, levels=2)
+    assert all(lv.edges.shape[1] / lv.num_nodes < d for lv, d in zip(default, deg, strict=True))
+    with pytest.raises(ValueError):
+        anchor_hierarchy(mesh_edges(f), n, levels=2, rule="two_hop", anchors="mis")
+
+
 def test_virtual_edges_link_nearest_pairs(scene):
     cloth, body, xs = scene
     topo = GraphTopology.from_cloth(cloth, virtual_radius=0.05)

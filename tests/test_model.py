@@ -27,8 +27,15 @@ def test_config_validation():
         SMLNConfig(schedule=((0, 1), (2, 1), (0, 1)))
     with pytest.raises(ValueError):
         SMLNConfig(schedule=((1, 1), (0, 1)))
+    with pytest.raises(ValueError):
+        SMLNConfig(coarse_edges="two_hop")  # needs anchors="bfs_even"
+    with pytest.raises(ValueError):
+        SMLNConfig(coarse_edges="knn")
     cfg = SMLNConfig()
+    assert (cfg.coarse_edges, cfg.anchors) == ("cluster", "mis")
     assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
+    legacy = SMLNConfig(coarse_edges="two_hop", anchors="bfs_even")
+    assert SMLNConfig.from_dict(legacy.to_dict()) == legacy
 
 
 def test_mlp_layernorm_and_decoder():
@@ -136,6 +143,12 @@ def test_normalizer_accumulates_then_freezes():
     nm(x)
     assert torch.equal(nm.total, before)
     assert set(dict(nm.named_buffers())) == {"count", "calls", "total", "total_sq"}
+    # the cached statistics follow a state-dict load (in-place copy into the buffers)
+    other = Normalizer(2, max_accumulations=2)
+    other.load_state_dict(nm.state_dict())
+    assert torch.equal(other.mean_std()[0], nm.mean_std()[0])
+    nm.load_state_dict(Normalizer(2).state_dict())
+    assert torch.equal(nm.mean_std()[0], torch.zeros(2))
 
 
 def test_backward_reaches_all_weights(scene):

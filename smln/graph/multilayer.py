@@ -135,11 +135,19 @@ class GraphTopology:
         self.level_nodes = [torch.as_tensor(lv.nodes, device=dev) for lv in levels]
         self.level_edges = [torch.as_tensor(lv.edges, device=dev) for lv in levels]
         self.level_parent = [torch.as_tensor(lv.parent, device=dev) for lv in levels]
-        self.level_rest_vectors = []
-        for nodes, edges in zip(self.level_nodes, self.level_edges, strict=True):
-            g = nodes[edges]
-            self.level_rest_vectors.append(rest[g[0]] - rest[g[1]])
+        # per-step constants, computed once: level sizes (no .item() in pooling), 1/cluster size for mean
+        # pooling, anchor edges as fine-mesh indices, and the static columns of every edge feature set
+        self.level_sizes = [lv.num_nodes for lv in levels]
+        self.level_inv_count = []
+        for par, size in zip(self.level_parent, self.level_sizes, strict=True):
+            cnt = torch.bincount(par, minlength=size).to(torch.float32).clamp_min(1.0)
+            self.level_inv_count.append((1.0 / cnt).unsqueeze(-1))
+        self.level_global_edges = [nodes[edges] for nodes, edges in zip(self.level_nodes, self.level_edges,
+                                                                          strict=True)]
+        self.level_rest_vectors = [rest[g[0]] - rest[g[1]] for g in self.level_global_edges]
         self.material = cloth.material.as_features().to(dev)
+        self.mesh_static = self._edge_static(self.rest_vectors)
+        self.level_static = [self._edge_static(r) for r in self.level_rest_vectors]
         self.static_node = self._static_node_features()
 
     @classmethod
@@ -148,6 +156,8 @@ class GraphTopology:
         cloth: Cloth,
         *,
         levels: int = 3,
+        coarse_edges: str = "cluster",
+        anchors: str = "mis",
         body_radius: float = 0.03,
         virtual_radius: float = 0.05,
         dt: float = DT,
@@ -157,15 +167,24 @@ class GraphTopology:
         Args:
             cloth: the concatenated layers.
             levels: number of anchor levels (the hierarchy is cached per topology).
+            coarse_edges: anchor connectivity, ``"cluster"`` or ``"two_hop"`` (:mod:`smln.graph.hierarchy`).
+            anchors: anchor choice, ``"mis"`` or ``"bfs_even"`` (:mod:`smln.graph.hierarchy`).
             body_radius: max distance of a body world edge, m (HOOD: 3 cm).
             virtual_radius: max distance of an inter-layer virtual edge, m.
             dt: time step, s.
         """
         faces = cloth.faces.detach().cpu().numpy()
         e = mesh_edges(faces)
-        lv = anchor_hierarchy(e, cloth.num_vertices, levels)
+        lv = anchor_hierarchy(e, cloth.num_vertices, levels, rule=coarse_edges, anchors=anchors)
         edge_index = torch.as_tensor(e, device=cloth.rest_vertices.device)
         return cls(cloth, lv, edge_index, body_radius=body_radius, virtual_radius=virtual_radius, dt=dt)
+
+    def _edge_static(self, rest: torch.Tensor) -> torch.Tensor:
+        """(E, 8) static columns of the mesh-edge features: rest vector, its norm, Δt, material."""
+        n = rest.shape[0]
+        return torch.cat(
+            [rest, rest.norm(dim=-1, keepdim=True), torch.full((n, 1), self.dt, device=self.device),
+             self.material.reshape(1, 3).expand(n, 3)], dim=-1)
 
     def _static_node_features(self) -> torch.Tensor:
         """(V, 24) node features that never change; dynamic slots left zero."""
@@ -263,21 +282,14 @@ class GraphTopology:
         up_t = torch.as_tensor(up, device=dev)
         rep_pairs = torch.stack([r[up_t], s[up_t]])  # (outer i, inner j)
 
-        # mesh edges (fine and anchor levels)
-        mat = self.material.expand(1, 3)
-
-        def edge_feat(xs: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
-            n = xs.shape[0]
-            return torch.cat(
-                [xs, xs.norm(dim=-1, keepdim=True), rest, rest.norm(dim=-1, keepdim=True),
-                 torch.full((n, 1), dt, device=dev), mat.expand(n, 3)], dim=-1)
+        # mesh edges (fine and anchor levels): dynamic columns + the precomputed static ones
+        def edge_feat(g: torch.Tensor, static: torch.Tensor) -> torch.Tensor:
+            xs = x_cur[g[0]] - x_cur[g[1]]
+            return torch.cat([xs, xs.norm(dim=-1, keepdim=True), static], dim=-1)
 
         me = self.mesh_edges
-        mesh_feat = edge_feat(x_cur[me[0]] - x_cur[me[1]], self.rest_vectors)
-        coarse_feat = []
-        for nodes, edges, rest in zip(self.level_nodes, self.level_edges, self.level_rest_vectors, strict=True):
-            g = nodes[edges]
-            coarse_feat.append(edge_feat(x_cur[g[0]] - x_cur[g[1]], rest))
+        mesh_feat = edge_feat(me, self.mesh_static)
+        coarse_feat = [edge_feat(g, st) for g, st in zip(self.level_global_edges, self.level_static, strict=True)]
 
         # nodes
         nf = self.static_node.clone()

@@ -28,20 +28,32 @@ class Normalizer(nn.Module):
         self.register_buffer("calls", torch.zeros((), dtype=torch.float64))
         self.register_buffer("total", torch.zeros(size, dtype=torch.float64))
         self.register_buffer("total_sq", torch.zeros(size, dtype=torch.float64))
+        self._cache: tuple[tuple, torch.Tensor, torch.Tensor] | None = None
 
     @property
     def frozen(self) -> bool:
         return bool(self.calls.item() >= self.max_accumulations)
 
+    def _stats_key(self) -> tuple:
+        """Changes whenever a statistics buffer is replaced or modified in place (accumulation, loading)."""
+        bufs = (self.count, self.total, self.total_sq)
+        return tuple((id(b), b._version, b.device) for b in bufs)
+
     def mean_std(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Current (D,) float32 mean and std (0 and 1 before any data)."""
+        """Current (D,) float32 mean and std (0 and 1 before any data), cached until the statistics change
+        (no float64 math or host sync per step once frozen)."""
+        key = self._stats_key()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1], self._cache[2]
         n = self.count.clamp_min(1.0)
         mean = self.total / n
         var = (self.total_sq / n - mean * mean).clamp_min(0.0)
         std = var.sqrt().clamp_min(self.std_floor)
         if self.count.item() == 0:
             mean, std = torch.zeros_like(mean), torch.ones_like(std)
-        return mean.float(), std.float()
+        mean, std = mean.float(), std.float()
+        self._cache = (key, mean, std)
+        return mean, std
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(N, D) -> (N, D) normalised; accumulates statistics while training and not yet frozen."""

@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from smln.cloth import DT, GRAVITY
+from smln.graph.hierarchy import check_rules
 from smln.graph.multilayer import (
     BODY_EDGE_DIM,
     MESH_EDGE_DIM,
@@ -32,15 +33,30 @@ class SMLNConfig:
     cores, <= 0.25 s per training step on a ~1.5k-vertex outfit). One message-passing step on the fine level
     of a 5k-vertex outfit costs ~20-30 ms at latent 64 (DESIGN.md "Speed facts"), so the fine level gets only
     one step on the way down and one on the way up (it must end at the fine level so the decoder sees sharp
-    per-vertex information), and the remaining steps run on the anchor levels, which hold 1/2, 1/4 and 1/8 of
-    the nodes. Latent 64 (the paper's 128 costs ~2.5x per step) and one hidden layer per MLP (the MLP class
-    defaults to two, MeshGraphNets-style; the measured probe in DESIGN.md used one) keep the fine steps
-    affordable. See ``bench/rollout_speed.py`` for the measured figures.
+    per-vertex information), and the remaining steps run on the anchor levels. Latent 64 (the paper's 128
+    costs ~2.5x per step) and one hidden layer per MLP (the MLP class defaults to two, MeshGraphNets-style;
+    the measured probe in DESIGN.md used one) keep the fine steps affordable.
+
+    Anchor levels (measured on a 2-layer ~5k-vertex outfit, 30k fine mesh edges): one even-BFS pass keeps
+    about HALF the nodes (not a quarter), and HOOD's two-hop rule densifies every level (mean degrees ~10, 17,
+    30), so levels 1-3 carried 24k, 20k and 18k edges and dominated the network time (~204 ms/frame, 1
+    thread). Joining anchors whose clusters touch (``coarse_edges="cluster"``) keeps degrees mesh-like (~6, 8,
+    13 with the even-BFS anchors: about a third of the coarse edge cost). Re-applying the even-BFS pass to
+    reach a quarter does not work (it keeps whole BFS rings; a 5k-vertex outfit collapsed to one node per
+    component at level 3), so anchors are a maximal independent set of each level's graph
+    (``anchors="mis"``): ~1/4 of the nodes per level (4820 -> 1141 -> 291 -> 83 on tshirt_jacket at 2 cm,
+    mean degree ~5.5, edges 6.6k, 1.6k, 0.4k vs 28k fine), every level connected per component.
+    ``coarse_edges="two_hop", anchors="bfs_even"`` is the earlier (HOOD) hierarchy; checkpoints saved before
+    these fields existed were trained on it. See ``bench/rollout_speed.py`` for the figures.
 
     Attributes:
         latent_size: width of node/edge latents and MLP hidden layers.
         mlp_hidden_layers: hidden layers of every encoder/processor/decoder MLP.
         levels: anchor levels of the hierarchy (HOOD: 3).
+        coarse_edges: anchor-level connectivity: ``"cluster"`` (anchors whose clusters touch, default) or
+            ``"two_hop"`` (HOOD: kept nodes at most two hops apart); :mod:`smln.graph.hierarchy`.
+        anchors: anchor choice per level: ``"mis"`` (maximal independent set, ~1/4 of the nodes, default)
+            or ``"bfs_even"`` (HOOD: even BFS distance, ~1/2 of the nodes).
         schedule: ((level, steps), ...) visited in order; starts and ends at level 0, changes level by one.
         body_radius: body world edge radius, m (HOOD: 3 cm).
         virtual_radius: inter-layer virtual edge radius, m.
@@ -56,6 +72,8 @@ class SMLNConfig:
     latent_size: int = 64
     mlp_hidden_layers: int = 1
     levels: int = 3
+    coarse_edges: str = "cluster"
+    anchors: str = "mis"
     schedule: tuple[tuple[int, int], ...] = field(
         default_factory=lambda: ((0, 1), (1, 1), (2, 1), (3, 2), (2, 1), (1, 1), (0, 1))
     )
@@ -69,6 +87,7 @@ class SMLNConfig:
     dt: float = DT
 
     def __post_init__(self) -> None:
+        check_rules(self.coarse_edges, self.anchors)
         self.schedule = tuple((int(lv), int(n)) for lv, n in self.schedule)
         if not self.schedule or self.schedule[0][0] != 0 or self.schedule[-1][0] != 0:
             raise ValueError("schedule must start and end at level 0")
@@ -128,7 +147,8 @@ class SMLN(nn.Module):
         """Static graph of an outfit with this model's radii and levels."""
         c = self.config
         return GraphTopology.from_cloth(
-            cloth, levels=c.levels, body_radius=c.body_radius, virtual_radius=c.virtual_radius, dt=c.dt
+            cloth, levels=c.levels, coarse_edges=c.coarse_edges, anchors=c.anchors,
+            body_radius=c.body_radius, virtual_radius=c.virtual_radius, dt=c.dt,
         )
 
     def forward(self, graph: GraphInputs, topology: GraphTopology) -> tuple[
@@ -161,7 +181,9 @@ class SMLN(nn.Module):
                 coarse.append((ed[0], ed[1], self.coarse_encoders[k](self.coarse_norm[k](feat))))
             else:
                 coarse.append((ed[0], ed[1], feat[:, :0]))
-        h = self.processor(h, fine, coarse, topology.level_parent)
+        h = self.processor(
+            h, fine, coarse, topology.level_parent, topology.level_sizes, topology.level_inv_count
+        )
         free = topology.free.unsqueeze(-1).to(h.dtype)
         p = self.decoder(h) * self.output_scale * free
         x_hat = graph.x_cur + graph.velocity + p
