@@ -13,6 +13,7 @@ notification: bad input never stops the server or changes what was shown.
 
 from __future__ import annotations
 
+import collections
 import functools
 import threading
 import time
@@ -97,7 +98,8 @@ class ViewerApp:
         self._last_centre: np.ndarray | None = None
         self._needs_camera_reset = True
         self.frames_pushed = 0
-        self.bytes_hint = 0
+        self.push_seconds: collections.deque[float] = collections.deque(maxlen=1000)
+        """Wall time of the most recent frame pushes (scene, GUI, metrics, camera), s."""
         start_variants = variants or (["full"] if "full" in catalog.checkpoints else ["skinning"])
         self._variants = [v for v in VARIANTS if v in start_variants]
         setting = setting or catalog.default_setting()
@@ -458,6 +460,7 @@ class ViewerApp:
         if not self._dirty:
             return clock
         self._dirty = False
+        t0 = time.perf_counter()
         idx = self.frame_index
         frames = {v: caches[v].get(idx) if v in caches else None for v in variants}
         status = {v: self._variant_status(caches.get(v), idx, scenario.num_frames) for v in variants}
@@ -469,6 +472,7 @@ class ViewerApp:
         self.metrics.update(caches, idx)
         self._camera(frames)
         self.frames_pushed += 1
+        self.push_seconds.append(time.perf_counter() - t0)
         return clock
 
     def _on_new_scenario(self, scenario: Scenario | None) -> None:
