@@ -88,21 +88,41 @@ def make_scene(
 
 
 class SceneCache:
-    """Bounded LRU cache of scenes keyed by (outfit, shape, motion)."""
+    """Scenes for training, built from separately cached parts.
 
-    def __init__(self, model=None, edge_length: float = 0.035, capacity: int = 16) -> None:
+    The outfit parts (cloth, rest state, graph topology) are cached per (outfit, shape) without limit (a few dozen
+    small objects); posed body sequences per (shape, clip) in a bounded LRU (tens of MB each). Assembling a scene
+    from cached parts costs one skinning of the garments along the clip.
+    """
+
+    def __init__(self, model=None, edge_length: float = 0.035, capacity: int = 48) -> None:
         self.model = model
         self.edge_length = edge_length
         self.capacity = capacity
-        self._scenes: OrderedDict[tuple[str, str, str], Scene] = OrderedDict()
+        self._outfits: dict[tuple[str, str], tuple[Cloth, ClothRest, object | None]] = {}
+        self._bodies: OrderedDict[tuple[str, str], BodySequence] = OrderedDict()
+
+    def outfit(self, outfit: str, shape: str) -> tuple[Cloth, ClothRest, object | None]:
+        key = (outfit, shape)
+        if key not in self._outfits:
+            cloth = build_cloth(outfit, shape, self.edge_length)
+            topo = self.model.make_topology(cloth) if self.model is not None else None
+            self._outfits[key] = (cloth, ClothRest.from_cloth(cloth), topo)
+        return self._outfits[key]
+
+    def body(self, shape: str, motion: str) -> BodySequence:
+        key = (shape, motion)
+        if key in self._bodies:
+            self._bodies.move_to_end(key)
+            return self._bodies[key]
+        seq = load_body_sequence(motion, load_body(shape))
+        self._bodies[key] = seq
+        while len(self._bodies) > self.capacity:
+            self._bodies.popitem(last=False)
+        return seq
 
     def get(self, outfit: str, shape: str, motion: str) -> Scene:
-        key = (outfit, shape, motion)
-        if key in self._scenes:
-            self._scenes.move_to_end(key)
-            return self._scenes[key]
-        scene = make_scene(outfit, shape, motion, edge_length=self.edge_length, model=self.model)
-        self._scenes[key] = scene
-        while len(self._scenes) > self.capacity:
-            self._scenes.popitem(last=False)
-        return scene
+        cloth, rest, topo = self.outfit(outfit, shape)
+        seq = self.body(shape, motion)
+        skinned = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights, seq.transforms)
+        return Scene(outfit, shape, motion, cloth, seq, skinned, rest, topo)
