@@ -1,8 +1,9 @@
 """Live metrics: a markdown table for the current frame and uPlot curves over the clip with a cursor line.
 
-The cursor is drawn as a vertical segment: two extra samples at x = current frame are inserted into the
-(sorted) x axis; the variant curves are NaN there (``spanGaps`` bridges them) and the cursor series holds the
-plot's y range there and NaN elsewhere.
+uPlot's scales break on NaN, so the curves hold only the frames every variant has computed (the shared
+timeline) and the x axis is fixed to the whole clip. The cursor is a vertical segment: two extra samples at
+x = current frame are inserted into the (sorted) x axis; the variant curves repeat their value there and the
+cursor series, flat at the plot's lower bound elsewhere, rises to the upper bound at the first inserted sample.
 """
 
 from __future__ import annotations
@@ -32,32 +33,29 @@ VARIANT_STROKES: dict[str, str] = {
 }
 
 
-def metric_series(frames: list[Any], total: int, key: str, factor: float) -> np.ndarray:
-    """(total,) float64 values of one metric over the computed frames, NaN after them."""
-    out = np.full(total, np.nan)
-    n = min(len(frames), total)
-    if n:
-        out[:n] = [f.metrics.get(key, np.nan) for f in frames[:n]]
-    return out * factor
+def metric_series(frames: list[Any], count: int, key: str, factor: float) -> np.ndarray:
+    """(count,) float64 values of one metric over the first ``count`` frames (non-finite values -> 0)."""
+    values = np.array([f.metrics.get(key, 0.0) for f in frames[:count]], dtype=np.float64) * factor
+    return np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def with_cursor(x: np.ndarray, ys: list[np.ndarray], index: int) -> tuple[np.ndarray, ...]:
-    """uPlot data with a vertical cursor at frame ``index``.
+    """uPlot data with a vertical cursor at frame ``index`` (no NaN anywhere).
 
     Args:
-        x: (T,) frame numbers; ys: per variant (T,) values; index: current frame.
+        x: (n,) frame numbers, n >= 1; ys: per variant (n,) values; index: current frame.
 
     Returns:
-        (x', y'_1, ..., y'_n, cursor) each of length T + 2.
+        (x', y'_1, ..., y'_k, cursor), each of length n + 2.
     """
-    i = int(np.clip(index, 0, len(x) - 1)) + 1
-    finite = np.concatenate([y[np.isfinite(y)] for y in ys] + [np.zeros(1)])
-    lo, hi = float(finite.min()), float(finite.max())
+    i = int(np.clip(index, 0, len(x) - 1))
+    values = np.concatenate([*ys, np.zeros(1)])
+    lo, hi = float(values.min()), float(values.max())
     hi = hi if hi > lo else lo + 1.0
-    xs = np.insert(x.astype(np.float64), i, [x[i - 1], x[i - 1]])
-    curves = [np.insert(y, i, [np.nan, np.nan]) for y in ys]
-    cursor = np.full(len(xs), np.nan)
-    cursor[i], cursor[i + 1] = lo, hi
+    xs = np.insert(x.astype(np.float64), i + 1, [x[i], x[i]])
+    curves = [np.insert(y, i + 1, [y[i], y[i]]) for y in ys]
+    cursor = np.full(len(xs), lo)
+    cursor[i + 1] = hi
     return (xs, *curves, cursor)
 
 
@@ -81,18 +79,18 @@ class MetricsPanel:
         for h in self.plots.values():
             h.remove()
         self.variants, self.total = tuple(variants), total
-        x = np.arange(max(total, 1), dtype=np.float64)
+        x = np.zeros(1)
         series = (
             uplot.Series(label="frame"),
             *[uplot.Series(label=VARIANT_LABELS.get(v, v), stroke=VARIANT_STROKES.get(v, "#333"), width=2,
                            spanGaps=True) for v in variants],
-            uplot.Series(label="now", stroke="#222222", width=1, spanGaps=False),
+            uplot.Series(label="now", stroke="#999999", width=1),
         )
         self.plots = {}
         for key, title, _ in PLOT_METRICS:
-            data = with_cursor(x, [np.full(len(x), np.nan) for _ in variants], 0)
-            self.plots[key] = self.gui.add_uplot(data, series, title=title, aspect=2.0,
-                                                 scales={"x": uplot.Scale(time=False, auto=True)})
+            data = with_cursor(x, [np.zeros(1) for _ in variants], 0)
+            x_range = uplot.Scale(time=False, auto=False, range=(0.0, float(max(total - 1, 1))))
+            self.plots[key] = self.gui.add_uplot(data, series, title=title, aspect=2.0, scales={"x": x_range})
         self._last_key = ()
 
     def update(self, caches: dict[str, Any], index: int, force: bool = False) -> None:
@@ -106,10 +104,12 @@ class MetricsPanel:
         self.table.content = self.table_markdown(caches, index)
         if not self.variants or not self.total:
             return
-        x = np.arange(self.total, dtype=np.float64)
+        count = min(min(counts), self.total) if counts else 0
+        if count == 0:
+            return
+        x = np.arange(count, dtype=np.float64)
         for mkey, _, factor in PLOT_METRICS:
-            ys = [metric_series(caches[v].frames if v in caches else [], self.total, mkey, factor)
-                  for v in self.variants]
+            ys = [metric_series(caches[v].frames, count, mkey, factor) for v in self.variants]
             self.plots[mkey].data = with_cursor(x, ys, index)
 
     def table_markdown(self, caches: dict[str, Any], index: int) -> str:

@@ -34,7 +34,7 @@ from app.sources import FPS, MAX_FRAMES, VARIANT_LABELS, VARIANTS, Catalog, Scen
 from app.uploads import UploadError, UploadStore
 from smln.export import export_bytes, rollout_from_frames
 
-CAMERA_OFFSET = np.array([0.0, -3.6, 0.5])
+CAMERA_OFFSET = np.array([0.0, -2.8, 0.35])
 """Default camera position relative to the look-at point (in front of the body, which faces -Y), m."""
 
 
@@ -457,6 +457,7 @@ class ViewerApp:
         else:
             clock = 0.0
         self._update_status(scenario, caches, variants, n)
+        self.metrics.update(caches, self.frame_index)  # throttled; catches up on computed frames
         if not self._dirty:
             return clock
         self._dirty = False
@@ -469,7 +470,6 @@ class ViewerApp:
             self.scene.show(frames, self.display, status)
             if self.controls.frame.value != idx:
                 self.controls.frame.value = idx
-        self.metrics.update(caches, idx)
         self._camera(frames)
         self.frames_pushed += 1
         self.push_seconds.append(time.perf_counter() - t0)
@@ -522,12 +522,15 @@ class ViewerApp:
             c.status.content = text
 
     # ---- camera ----------------------------------------------------------------------------------------------
+    def _spread(self) -> float:
+        """Camera distance factor: wider for more variants side by side."""
+        return 1.0 + 0.3 * max(len(self._variants) - 1, 0)
+
     def _place_camera(self, client: viser.ClientHandle, centre: np.ndarray) -> None:
-        spread = 1.0 + 0.35 * max(len(self._variants) - 1, 0)
         look = centre + np.array([0.0, 0.0, -0.05])
         with client.atomic():
             client.camera.up_direction = (0.0, 0.0, 1.0)
-            client.camera.position = tuple(look + CAMERA_OFFSET * spread)
+            client.camera.position = tuple(look + CAMERA_OFFSET * self._spread())
             client.camera.look_at = tuple(look)
 
     def _camera(self, frames: dict[str, Any]) -> None:
@@ -542,14 +545,15 @@ class ViewerApp:
             return
         if self.follow and self._last_centre is not None:
             delta = centre - self._last_centre
-            delta[2] = 0.0
-            if np.abs(delta).max() > 1e-3:
+            if np.abs(delta[:2]).max() > 1e-3:
+                look = centre + np.array([0.0, 0.0, -0.05])
+                orbit = CAMERA_OFFSET * self._spread()  # follow keeps the default view (turn it off to orbit)
                 for client in self.server.get_clients().values():
                     cam = client.camera
                     with client.atomic(), warnings.catch_warnings():
                         warnings.simplefilter("ignore")  # a browser that is just leaving
-                        cam.position = tuple(np.asarray(cam.position) + delta)
-                        cam.look_at = tuple(np.asarray(cam.look_at) + delta)
+                        cam.look_at = tuple(look)
+                        cam.position = tuple(look + orbit)
                 self._last_centre = centre
             return
         self._last_centre = centre

@@ -165,11 +165,11 @@ def test_viewer_in_chromium(tmp_path):
             page.get_by_text("Connected").wait_for(timeout=30_000)
 
             _pick(page, "Outfit", "tshirt_jacket (seen · train)")
-            _pick(page, "Motion clip", "09_06_run (test)")
+            _pick(page, "Motion clip", "02_05_punch_strike (test)")
             deadline = time.monotonic() + 30
-            while app.setting.clip != "09_06_run" and time.monotonic() < deadline:
+            while app.setting.clip != "02_05_punch_strike" and time.monotonic() < deadline:
                 time.sleep(0.1)
-            assert app.setting == Setting("tshirt_jacket", "09_06_run", "female_average")
+            assert app.setting == Setting("tshirt_jacket", "02_05_punch_strike", "female_average")
             assert app.worker.wait_frames(12, timeout=30)
 
             page.get_by_role("button", name="Pause").click()
@@ -182,7 +182,7 @@ def test_viewer_in_chromium(tmp_path):
             time.sleep(1.0)
             one = SHOTS / "viewer_single.png"
             page.screenshot(path=str(one))
-            assert _coloured_fraction(one, canvas_box) > 0.01, "no garment pixels in the 3-D view"
+            assert _coloured_fraction(one, canvas_box) > 0.003, "no garment pixels in the 3-D view"
 
             page.get_by_role("checkbox", name="SMLN (full)").check()
             page.get_by_role("checkbox", name="baseline").check()
@@ -198,7 +198,7 @@ def test_viewer_in_chromium(tmp_path):
             time.sleep(3.0)
             three = SHOTS / "viewer_variants.png"
             page.screenshot(path=str(three))
-            assert _coloured_fraction(three, canvas_box) > 0.01
+            assert _coloured_fraction(three, canvas_box) > 0.003
             assert len(app.scene.views) == 3
             browser.close()
     finally:
