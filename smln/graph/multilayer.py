@@ -64,7 +64,9 @@ def _nearest(query: np.ndarray, ref: np.ndarray, radius: float) -> tuple[np.ndar
     """
     if len(ref) == 0 or len(query) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    dist, idx = cKDTree(ref).query(query, k=1, distance_upper_bound=radius)
+    # unbalanced, non-compact trees build ~1.5-2x faster and query as fast (a new tree every step)
+    tree = cKDTree(np.ascontiguousarray(ref, dtype=np.float64), balanced_tree=False, compact_nodes=False)
+    dist, idx = tree.query(query, k=1, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     return np.flatnonzero(ok).astype(np.int64), idx[ok].astype(np.int64)
 
