@@ -136,9 +136,10 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         )
     try:
         config = SMLNConfig.from_dict(card["config"])
-    except (TypeError, ValueError) as e:
-        raise CheckpointError(f"{card_path}: invalid config ({e})") from e
-    model = SMLN(config)
+        model = SMLN(config)  # the card is not covered by the sha256: a hand-edited config fails here
+    except (TypeError, ValueError, RuntimeError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CheckpointError(f"{card_path}: invalid config ({first[:200]})") from None
     expected = model.state_dict()
     try:
         with safe_open(str(tensors_path), framework="pt") as f:
