@@ -197,8 +197,8 @@ def load_rollout_npz(path: str | Path | IO[bytes]) -> Rollout:
     """
     try:
         data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise ExportError(f"{path}: not a rollout NPZ ({exc})") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise ExportError(f"{path}: not a rollout NPZ ({str(exc) or type(exc).__name__})") from exc
     with data:
         missing = [k for k in REQUIRED_KEYS if k not in data.files]
         if missing:
