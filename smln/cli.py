@@ -43,6 +43,8 @@ def _cmd_body(args: argparse.Namespace) -> None:
     body = load_body(args.shape)
     seq = load_body_sequence(args.motion, body, max_frames=args.frames)
     out = Path(args.out)
+    if out.suffix != ".npz":  # numpy appends .npz: check the file that will really be written
+        out = out.with_name(out.name + ".npz")
     _refuse_overwrite(out, args.force)
     np.savez_compressed(out, vertices=seq.vertices.numpy(), faces=seq.faces.numpy().astype(np.int32),
                         fps=np.array(seq.fps), shape=np.array(args.shape), motion=np.array(seq.name))
@@ -122,6 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _first_line(exc: BaseException) -> str:
+    """The first line of an error message (the CLI prints exactly one line per error)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
@@ -133,7 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args.func(args)
     except (ValueError, FileNotFoundError, FileExistsError, OSError) as exc:
-        print(f"smln {args.command}: error: {exc}", file=sys.stderr)
+        print(f"smln {args.command}: error: {_first_line(exc)}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:  # CheckpointError (a RuntimeError); smln.checkpoint is loaded if it raised one
+        checkpoint = sys.modules.get("smln.checkpoint")
+        if checkpoint is None or not isinstance(exc, checkpoint.CheckpointError):
+            raise
+        print(f"smln {args.command}: error: {_first_line(exc)}", file=sys.stderr)
         return 2
     return 0
 
