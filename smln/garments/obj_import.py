@@ -58,6 +58,9 @@ def load_mesh_arrays(path: str | Path, max_vertices: int = MAX_VERTICES) -> tupl
     f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(v) == 0 or len(f) == 0:
         raise GarmentError(f"{path}: no triangle or quad faces found (is it a mesh file?)")
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise GarmentError(f"{path}: vertices must have 3 coordinates and faces 3 corners "
+                           f"(got {v.shape[1:]} and {f.shape[1:]})")
     if len(v) > max_vertices:
         raise GarmentError(f"{path}: {len(v):,} vertices, more than the limit of {max_vertices:,}; decimate it first")
     if not np.isfinite(v).all():
