@@ -180,7 +180,7 @@ def _divergence(x: torch.Tensor, skinned: torch.Tensor, max_distance: float) -> 
     """Cheap checks before the metrics: non-finite positions or a vertex too far from its skinned place."""
     if not bool(torch.isfinite(x).all()):
         return "non-finite positions"
-    d = float((x - skinned).norm(dim=-1).max())
+    d = float((x.detach() - skinned).norm(dim=-1).max())
     if d > max_distance:
         return f"a vertex is {d:.2f} m from its skinned position (> {max_distance} m)"
     return None
