@@ -1,0 +1,77 @@
+"""Render a few frames of each method side by side (matplotlib, no GPU) for docs/RESULTS.md.
+
+    python scripts/render_rollout_frames.py --outfit tshirt_jacket --motion 05_01_walk --frames 20 45 70 \
+        --out docs/results/frames_tshirt_jacket.png
+
+Rows are methods (skinning and every checkpoint found in ``--checkpoints``), columns the requested frames; body in
+grey, layers in colour, inter-layer penetrating vertices in red.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from smln.data_sampling import make_scene
+from smln.evaluate import method_frames
+from smln.garments.render import BODY_COLOUR, LAYER_COLOURS, draw_meshes
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--outfit", default="tshirt_jacket")
+    p.add_argument("--motion", default="05_01_walk")
+    p.add_argument("--shape", default="female_average")
+    p.add_argument("--frames", type=int, nargs="+", default=[20, 45, 70])
+    p.add_argument("--checkpoints", default="checkpoints")
+    p.add_argument("--edge-length", type=float, default=0.035)
+    p.add_argument("--view", default="front", choices=["front", "side", "back"])
+    p.add_argument("--out", required=True)
+    a = p.parse_args()
+    torch.set_num_threads(2)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from smln.checkpoint import load_checkpoint
+
+    n = max(a.frames) + 1
+    scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=n)
+    methods: list[tuple[str, object | None]] = [("skinning", None)]
+    for v in ("full", "no_repulsion_layer", "baseline"):
+        path = Path(a.checkpoints) / v
+        if path.exists():
+            methods.append((v, load_checkpoint(path)[0]))
+    faces = scene.cloth.faces.numpy()
+    layer_of_face = scene.cloth.layer_index[scene.cloth.faces[:, 0]].numpy()
+    fig, axes = plt.subplots(len(methods), len(a.frames), figsize=(3.2 * len(a.frames), 4.2 * len(methods)))
+    axes = np.atleast_2d(axes)
+    for row, (name, model) in enumerate(methods):
+        frames = {fr.index: fr for fr in method_frames("model" if model else name, model, scene, n)}
+        for col, t in enumerate(a.frames):
+            fr = frames[t]
+            meshes = [(fr.body_vertices, scene.body.faces.numpy(), BODY_COLOUR)]
+            for k in range(scene.cloth.num_layers):
+                meshes.append((fr.garment_positions, faces[layer_of_face == k], LAYER_COLOURS[k % 4]))
+            ax = axes[row, col]
+            draw_meshes(ax, meshes, a.view)
+            pen = fr.layer_penetration
+            if pen.any():
+                pts = fr.garment_positions[pen]
+                sx = np.array([1.0, 0, 0]) if a.view == "front" else np.array([0, -1.0, 0])
+                ax.scatter(pts @ sx, pts[:, 2], s=2, c="red")
+            label = f"{name}  t={t}" + ("  (fallback)" if fr.fallback else "")
+            ax.set_title(f"{label}\nL-Coll {fr.metrics['l_coll']:.1f}%  H-Coll {fr.metrics['h_coll']:.1f}%", fontsize=8)
+    fig.tight_layout()
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(a.out, dpi=80)
+    print(a.out)
+
+
+if __name__ == "__main__":
+    main()
