@@ -141,6 +141,8 @@ def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH
         raise MotionError(f"{path.name}: truncated: {local.shape[0]} frames of the {declared} declared")
     if not (np.isfinite(local).all() and np.isfinite(root).all()):
         raise MotionError(f"{path.name}: the motion contains NaN or infinite values")
+    if not (np.isfinite(offsets).all() and np.isfinite(end_offsets).all()):
+        raise MotionError(f"{path.name}: the skeleton has NaN or infinite joint offsets")
     fps = float(bvh.fps)
     if not np.isfinite(fps) or fps <= 0 or fps > 1000:
         raise MotionError(f"{path.name}: implausible frame rate {fps}")
