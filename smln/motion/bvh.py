@@ -72,19 +72,36 @@ class BvhClip:
         return pos
 
 
-def _drop_reference_frame(rotations: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop frame 0 when it is a converter's reference pose (a jump far larger than any later frame-to-frame step)."""
-    if rotations.shape[0] < 3:
+START_WINDOW_S = 0.25
+"""Only the first quarter second of a clip is searched for start-up glitches."""
+
+MAX_START_STEP_DEG_PER_S = 1200.0
+MAX_START_STEP_M_PER_S = 6.0
+"""A frame-to-frame step faster than this (any joint's rotation, or the root's motion) near the start of a clip is
+a converter artefact, not motion."""
+
+
+def _trim_start(rotations: np.ndarray, root: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the start-up glitches of a clip: the converter's reference pose (CMU frame 0), and in some CMU files
+    a few more frozen or jumping frames before the motion proper (05_01: two, 07_12: a 2.4 m root jump,
+    08_07: six frozen frames then a jump). The clip starts after the last implausibly fast step within the
+    first :data:`START_WINDOW_S` seconds; clips without such a step are left as they are.
+
+    Args:
+        rotations: (F, J, 3, 3) local joint rotations; root: (F, 3) root positions, meters; fps: frame rate.
+    """
+    window = min(rotations.shape[0] - 1, max(1, int(round(START_WINDOW_S * fps))))
+    if window < 1:
         return rotations, root
-    def step(a: np.ndarray, b: np.ndarray) -> float:
-        rel = np.einsum("jik,jil->jkl", a, b)  # a^T b per joint
-        cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-        return float(np.degrees(np.arccos(cos)).max())
-    first = step(rotations[0], rotations[1])
-    later = max(step(rotations[i], rotations[i + 1]) for i in range(1, min(6, rotations.shape[0] - 1)))
-    if first > 15.0 and first > 5.0 * max(later, 1.0):
-        return rotations[1:], root[1:]
-    return rotations, root
+    rel = np.einsum("fjik,fjil->fjkl", rotations[:window], rotations[1 : window + 1])  # R_i^T R_{i+1}
+    cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos)).max(axis=1) * fps  # deg/s, fastest joint per step
+    speed = np.linalg.norm(root[1 : window + 1] - root[:window], axis=1) * fps  # m/s
+    bad = np.nonzero((angle > MAX_START_STEP_DEG_PER_S) | (speed > MAX_START_STEP_M_PER_S))[0]
+    if len(bad) == 0 or bad[-1] + 1 >= rotations.shape[0] - 1:
+        return rotations, root
+    first = bad[-1] + 1
+    return rotations[first:], root[first:]
 
 
 def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH_FRAMES) -> BvhClip:
@@ -146,7 +163,7 @@ def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH
     fps = float(bvh.fps)
     if not np.isfinite(fps) or fps <= 0 or fps > 1000:
         raise MotionError(f"{path.name}: implausible frame rate {fps}")
-    local, root = _drop_reference_frame(local, root)
+    local, root_m = _trim_start(local, root * unit, fps)
     return BvhClip(
         name=path.stem,
         joint_names=names,
@@ -154,7 +171,7 @@ def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH
         offsets=offsets,
         end_offsets=end_offsets,
         local_rotations=local,
-        root_positions=root * unit,
+        root_positions=root_m,
         fps=fps,
     )
 
