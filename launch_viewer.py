@@ -1,7 +1,7 @@
 """Launch the SMLN browser viewer.
 
     python launch_viewer.py [--checkpoints DIR] [--host 127.0.0.1] [--port 8080] [--device cpu|cuda]
-                            [--allow-remote]
+                            [--allow-remote] [--extra-rollout ROLLOUT.npz ...]
 
 Binds to localhost unless ``--allow-remote`` is given (the viewer has no authentication: anyone who can reach
 the port can drive it and upload files). Bodies ship as compact exports, so start-up takes seconds.
@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Any
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
@@ -28,7 +29,39 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="garment triangle size in m (default 0.035, the training resolution; 0.02 is finer and slower)")
     p.add_argument("--allow-remote", action="store_true",
                    help="allow binding to a non-local interface (no authentication: use on trusted networks)")
+    p.add_argument("--extra-rollout", action="append", default=[], metavar="PATH",
+                   help="a saved rollout NPZ (e.g. runs/physics/*.npz from bench/physics_reference.py) shown as one "
+                        "more read-only variant on its own scene (repeatable)")
     return p.parse_args(argv)
+
+
+def load_extras(paths: list[str], catalog: Any) -> tuple[Any, Any]:
+    """Validate ``--extra-rollout`` files: a bad one is skipped with a one-line message on stderr.
+
+    Returns:
+        (:class:`app.extras.ExtraStore`, the first rollout's scene as a :class:`app.sources.Setting` if the
+        catalog offers it, else None).
+    """
+    from app.extras import ExtraRolloutError, ExtraStore
+    from app.sources import Setting
+
+    store = ExtraStore()
+    setting = None
+    for path in paths:
+        try:
+            extra = store.add(path)
+        except ExtraRolloutError as exc:
+            print(f"launch_viewer: skipping --extra-rollout {exc}", file=sys.stderr)
+            continue
+        where = extra.scene_text()
+        print(f"saved rollout: {extra.label} ({path}: {extra.num_frames} frames on {where})"
+              + (f"; {extra.note}" if extra.note else ""))
+        if setting is None and catalog is not None and None not in extra.scene:
+            outfit, clip, shape = extra.scene
+            if (outfit in {k for _, k in catalog.outfits()} and clip in {k for _, k in catalog.clips()}
+                    and shape in catalog.shapes()):
+                setting = Setting(outfit, clip, shape)
+    return store, setting
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,9 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"no checkpoint found in {args.checkpoints}/ (expected full/, no_repulsion_layer/, baseline/): "
               "showing skinning-only rollouts")
+    extras, setting = load_extras(args.extra_rollout, catalog)
     try:
         app = ViewerApp(host=args.host, port=args.port, catalog=catalog, device=args.device,
-                        max_frames=args.max_frames)
+                        max_frames=args.max_frames, extras=extras, setting=setting)
     except OSError as exc:
         print(f"launch_viewer: cannot listen on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ from typing import Any
 
 import viser
 
+from app.extras import MAX_ROLLOUT_UPLOAD_BYTES
 from app.scene import LAYER_COLOURS, Display
 from app.sources import VARIANT_LABELS, VARIANTS, Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, MAX_OBJ_BYTES
@@ -55,6 +56,8 @@ class Controls:
     outfit_keys: dict[str, str] = field(default_factory=dict)
     clip_keys: dict[str, str] = field(default_factory=dict)
     layer_handles: list[tuple[Any, Any]] = field(default_factory=list)
+    variants_folder: Any = None
+    upload_rollout: Any = None
 
     def outfit_label(self, key: str) -> str | None:
         return next((lab for lab, k in self.outfit_keys.items() if k == key), None)
@@ -68,7 +71,8 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
     """Lay out the panel.
 
     Folders: *Scene* (outfit, clip, body-shape pickers; BVH / OBJ uploads), *Playback* (play/pause, frame
-    slider, steps, speed, loop, streaming rate, progress, camera), *Variants* (the ablation checkboxes),
+    slider, steps, speed, loop, streaming rate, progress, camera), *Variants* (the ablation checkboxes, the
+    rollout NPZ upload; saved rollouts' checkboxes are added below it by the server),
     *Inspect* (overlays, vectors, wireframe, body, layers), *Metrics* and *Export*.
     """
     outfit_keys = dict(catalog.outfits())
@@ -97,7 +101,7 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
         status = gui.add_markdown("loading …")
         follow = gui.add_checkbox("Camera follows body", True)
         reset_camera = gui.add_button("Reset camera")
-    with gui.add_folder("Variants"):
+    with gui.add_folder("Variants") as variants_folder:
         boxes = {}
         for v in VARIANTS:
             ok = v in catalog.available_variants()
@@ -105,6 +109,10 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
                 VARIANT_LABELS[v], v in variants, disabled=not ok,
                 hint=None if ok else f"no checkpoint found in {catalog.checkpoint_dir}/{v}/",
             )
+        upload_rollout = gui.add_upload_button(
+            "Upload rollout NPZ", icon=None, mime_type=".npz",
+            hint=f"a saved rollout (smln rollout, bench/physics_reference.py, the viewer's NPZ export), at most "
+                 f"{MAX_ROLLOUT_UPLOAD_BYTES // 2**20} MB; shown as one more read-only variant on its own scene")
     with gui.add_folder("Inspect"):
         layer_pen = gui.add_checkbox("Inter-layer penetrations (red)", display.show_layer_pen)
         body_pen = gui.add_checkbox("Body penetrations (magenta)", display.show_body_pen)
@@ -125,7 +133,8 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
     return Controls(outfit, clip, shape, upload_bvh, upload_obj, checkpoint_note, play, frame, steps, speed, loop,
                     stream_fps, progress, status, follow, reset_camera, boxes, layer_pen,
                     body_pen, vectors, vector_scale, vector_threshold, wireframe, body, layers_folder,
-                    metrics_folder, export_variant, downloads, outfit_keys, clip_keys)
+                    metrics_folder, export_variant, downloads, outfit_keys, clip_keys,
+                    variants_folder=variants_folder, upload_rollout=upload_rollout)
 
 
 def _label(keys: dict[str, str], key: str) -> str:

@@ -31,11 +31,16 @@ VARIANT_STROKES: dict[str, str] = {
     "baseline": "#9467bd",
     "skinning": "#7f7f7f",
 }
+EXTRA_STROKES: tuple[str, ...] = ("#2ca02c", "#ff7f0e", "#17becf", "#8c564b")
+"""Curve colours of saved rollouts (cycled)."""
 
 
 def metric_series(frames: list[Any], count: int, key: str, factor: float) -> np.ndarray:
-    """(count,) float64 values of one metric over the first ``count`` frames (non-finite values -> 0)."""
+    """(count,) float64 values of one metric over the first ``count`` frames (non-finite values -> 0; a shorter
+    list, e.g. a saved rollout, holds its last value; no frames at all -> zeros)."""
     values = np.array([f.metrics.get(key, 0.0) for f in frames[:count]], dtype=np.float64) * factor
+    if len(values) < count:
+        values = np.concatenate([values, np.full(count - len(values), values[-1] if len(values) else 0.0)])
     return np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
 
 
@@ -71,9 +76,15 @@ class MetricsPanel:
         self.min_interval = min_interval
         self._last = 0.0
         self._last_key: tuple = ()
+        self.labels: dict[str, str] = {}
 
-    def rebuild(self, variants: list[str], total: int) -> None:
-        """Recreate the plots for a new set of variants or clip length."""
+    def label(self, v: str) -> str:
+        return self.labels.get(v) or VARIANT_LABELS.get(v, v)
+
+    def rebuild(self, variants: list[str], total: int, labels: dict[str, str] | None = None) -> None:
+        """Recreate the plots for a new set of variants or clip length (``labels``: names of variants that are
+        not in :data:`~app.sources.VARIANT_LABELS`, e.g. saved rollouts)."""
+        self.labels = dict(labels or {})
         if tuple(variants) == self.variants and total == self.total and self.plots:
             return
         for h in self.plots.values():
@@ -82,8 +93,8 @@ class MetricsPanel:
         x = np.zeros(1)
         series = (
             uplot.Series(label="frame"),
-            *[uplot.Series(label=VARIANT_LABELS.get(v, v), stroke=VARIANT_STROKES.get(v, "#333"), width=2,
-                           spanGaps=True) for v in variants],
+            *[uplot.Series(label=self.label(v), stroke=VARIANT_STROKES.get(v, EXTRA_STROKES[i % len(EXTRA_STROKES)]),
+                           width=2, spanGaps=True) for i, v in enumerate(variants)],
             uplot.Series(label="now", stroke="#999999", width=1),
         )
         self.plots = {}
@@ -93,10 +104,13 @@ class MetricsPanel:
             self.plots[key] = self.gui.add_uplot(data, series, title=title, aspect=2.0, scales={"x": x_range})
         self._last_key = ()
 
-    def update(self, caches: dict[str, Any], index: int, force: bool = False) -> None:
-        """Refresh the table for frame ``index`` and the curves (at most every ``min_interval`` s)."""
+    def update(self, caches: dict[str, Any], index: int, force: bool = False, count: int | None = None) -> None:
+        """Refresh the table for frame ``index`` and the curves (at most every ``min_interval`` s).
+
+        ``count``: frames on the shared timeline (default: the fewest any variant has); a variant with fewer
+        frames (a saved rollout) holds its last value on the curves."""
         counts = tuple(len(caches[v]) if v in caches else 0 for v in self.variants)
-        key = (index, counts)
+        key = (index, counts, count)
         now = time.monotonic()
         if not force and (key == self._last_key or now - self._last < self.min_interval):
             return
@@ -104,12 +118,15 @@ class MetricsPanel:
         self.table.content = self.table_markdown(caches, index)
         if not self.variants or not self.total:
             return
-        count = min(min(counts), self.total) if counts else 0
+        if count is None:
+            count = min(counts) if counts else 0
+        count = min(count, self.total)
         if count == 0:
             return
         x = np.arange(count, dtype=np.float64)
         for mkey, _, factor in PLOT_METRICS:
-            ys = [metric_series(caches[v].frames, count, mkey, factor) for v in self.variants]
+            ys = [metric_series(caches[v].frames if v in caches else [], count, mkey, factor)
+                  for v in self.variants]
             self.plots[mkey].data = with_cursor(x, ys, index)
 
     def table_markdown(self, caches: dict[str, Any], index: int) -> str:
@@ -119,12 +136,16 @@ class MetricsPanel:
         for v in self.variants:
             cache = caches.get(v)
             f = cache.frames[index] if cache is not None and index < len(cache) else None
+            note = " (fallback)" if f is not None and f.fallback else ""
+            if f is None and cache is not None and cache.done and len(cache):  # a finished saved rollout: hold
+                f, note = cache.frames[-1], f" (frame {len(cache) - 1})"
             if f is None:
-                rows.append(f"| {VARIANT_LABELS.get(v, v)} | … | … | … | … |")
+                text = cache.error[:30] if cache is not None and cache.error else "…"
+                rows.append(f"| {self.label(v)} | {text} | … | … | … |")
                 continue
             m = f.metrics
             rows.append(
-                f"| {VARIANT_LABELS.get(v, v)}{' (fallback)' if f.fallback else ''} | {m.get('l_coll', np.nan):.2f} | "
+                f"| {self.label(v)}{note} | {m.get('l_coll', np.nan):.2f} | "
                 f"{m.get('h_coll', np.nan):.2f} | {100 * m.get('strain_mean', np.nan):.2f} | "
                 f"{1000 * m.get('repulsion_mean', np.nan):.3f} |"
             )

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from app.extras import Geometry
 from app.sources import VARIANT_LABELS, Scenario
 
 VARIANT_SPACING = 1.2
@@ -89,24 +90,39 @@ def repulsion_segments(
     return pts, np.repeat(col[:, None], 2, axis=1)
 
 
+@dataclass
+class ViewSpec:
+    """How one variant is drawn: its label and its meshes."""
+
+    label: str
+    geometry: Geometry
+
+
+def scenario_geometry(scenario: Scenario) -> Geometry:
+    """The meshes of a computed variant: the scenario's cloth layers (rest shape) and its body (frame 0)."""
+    return Geometry(list(scenario.layer_slices), scenario.layer_faces, scenario.body_faces,
+                    scenario.cloth.rest_vertices.numpy(), scenario.sequence.vertices[0].numpy())
+
+
 class VariantView:
     """The scene nodes of one variant (under ``/variants/<variant>``)."""
 
     def __init__(self, scene: viser.SceneApi, variant: str, scenario: Scenario, offset: float,
-                 display: Display) -> None:
+                 display: Display, spec: ViewSpec | None = None) -> None:
         self.variant = variant
         self.scenario = scenario
+        spec = spec or ViewSpec(VARIANT_LABELS.get(variant, variant), scenario_geometry(scenario))
+        self.spec = spec
+        g = spec.geometry
+        self.layer_vertices = g.layer_vertices
         root = f"/variants/{variant}"
         self.root = scene.add_frame(root, show_axes=False, position=(offset, 0.0, 0.0))
-        seq = scenario.sequence
-        body0 = seq.vertices[0].numpy()
-        x0 = scenario.cloth.rest_vertices.numpy()
-        self.body = scene.add_mesh_simple(f"{root}/body", body0, scenario.body_faces, color=BODY_COLOUR,
+        self.body = scene.add_mesh_simple(f"{root}/body", g.body0, g.body_faces, color=BODY_COLOUR,
                                           visible=display.show_body)
         self.layers = [
-            scene.add_mesh_simple(f"{root}/layer_{k}", x0[s], f, color=display.colour(k), side="double",
+            scene.add_mesh_simple(f"{root}/layer_{k}", g.garment0[s], f, color=display.colour(k), side="double",
                                   wireframe=display.wireframe, visible=display.visible(k))
-            for k, (s, f) in enumerate(zip(scenario.layer_slices, scenario.layer_faces, strict=True))
+            for k, (s, f) in enumerate(zip(g.layer_vertices, g.layer_faces, strict=True))
         ]
         one = np.zeros((1, 3), np.float32)
         self.layer_pen = scene.add_point_cloud(f"{root}/layer_penetration", one, LAYER_PEN_COLOUR,
@@ -115,8 +131,8 @@ class VariantView:
                                               point_size=display.point_size, point_shape="circle", visible=False)
         self.vectors = scene.add_line_segments(f"{root}/repulsion", np.zeros((1, 2, 3), np.float32),
                                                (255, 200, 0), thickness=0.003, visible=False)
-        self.label = scene.add_label(f"{root}/label", VARIANT_LABELS.get(variant, variant),
-                                     position=(0.0, 0.0, 2.0), anchor="bottom-center", font_screen_scale=1.2)
+        self.label = scene.add_label(f"{root}/label", spec.label, position=(0.0, 0.0, 2.0),
+                                     anchor="bottom-center", font_screen_scale=1.2)
         self.shown_index = -1
         self._label_text = ""
 
@@ -135,7 +151,7 @@ class VariantView:
 
     def show(self, frame: Any, d: Display, status: str = "") -> None:
         """Show one :class:`smln.rollout.RolloutFrame` (or nothing yet if None)."""
-        label = VARIANT_LABELS.get(self.variant, self.variant) + (f"\n{status}" if status else "")
+        label = self.spec.label + (f"\n{status}" if status else "")
         if label != self._label_text:
             self.label.text = label
             self._label_text = label
@@ -144,11 +160,11 @@ class VariantView:
         x = frame.garment_positions
         body = frame.body_vertices
         self.body.vertices = body
-        for k, (mesh, s) in enumerate(zip(self.layers, self.scenario.layer_slices, strict=True)):
+        for k, (mesh, s) in enumerate(zip(self.layers, self.layer_vertices, strict=True)):
             if d.visible(k):
                 mesh.vertices = x[s]
         visible_v = np.ones(len(x), dtype=bool)
-        for k, s in enumerate(self.scenario.layer_slices):
+        for k, s in enumerate(self.layer_vertices):
             visible_v[s] = d.visible(k)
         _points(self.layer_pen, x[frame.layer_penetration & visible_v], d.show_layer_pen, LAYER_PEN_COLOUR)
         _points(self.body_pen, x[frame.body_penetration & visible_v], d.show_body_pen, BODY_PEN_COLOUR)
@@ -201,8 +217,10 @@ class SceneView:
         n = len(variants)
         return {v: (i - 0.5 * (n - 1)) * VARIANT_SPACING for i, v in enumerate(variants)}
 
-    def sync(self, scenario: Scenario | None, variants: list[str], display: Display) -> None:
-        """Create, remove and re-place variant nodes to match ``variants`` on ``scenario``."""
+    def sync(self, scenario: Scenario | None, variants: list[str], display: Display,
+             specs: dict[str, ViewSpec] | None = None) -> None:
+        """Create, remove and re-place variant nodes to match ``variants`` on ``scenario`` (``specs``: how to draw
+        variants that do not use the scenario's meshes, e.g. saved rollouts)."""
         if scenario is not self.scenario:
             for view in self.views.values():
                 view.remove()
@@ -217,7 +235,7 @@ class SceneView:
             if v in self.views:
                 self.views[v].set_offset(off)
             else:
-                self.views[v] = VariantView(self.server.scene, v, scenario, off, display)
+                self.views[v] = VariantView(self.server.scene, v, scenario, off, display, (specs or {}).get(v))
 
     def apply_display(self, display: Display) -> None:
         for view in self.views.values():

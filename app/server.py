@@ -27,9 +27,10 @@ import numpy as np
 import viser
 
 from app.controls import Controls, build_controls, build_layer_controls
+from app.extras import ExtraRollout, ExtraRolloutError, ExtraStore, is_extra
 from app.plots import MetricsPanel
-from app.rollout_worker import RolloutWorker
-from app.scene import Display, SceneView
+from app.rollout_worker import FrameCache, RolloutWorker
+from app.scene import Display, SceneView, ViewSpec
 from app.sources import FPS, MAX_FRAMES, VARIANT_LABELS, VARIANTS, Catalog, Scenario, Setting
 from app.uploads import UploadError, UploadStore
 from smln.export import export_bytes, rollout_from_frames
@@ -65,6 +66,8 @@ class ViewerApp:
         variants: variants enabled at start (default: the full model if present, else skinning).
         max_frames: cap on frames per rollout.
         verbose: viser's own logging.
+        extras: saved rollouts (an :class:`~app.extras.ExtraStore`, validated already) shown as more,
+            read-only variants; all of them are enabled at start.
     """
 
     def __init__(
@@ -78,8 +81,12 @@ class ViewerApp:
         variants: list[str] | None = None,
         max_frames: int = MAX_FRAMES,
         verbose: bool = False,
+        extras: ExtraStore | None = None,
     ) -> None:
         self.uploads = UploadStore()
+        self.extras = extras if extras is not None else ExtraStore()
+        self._extra_caches: dict[str, FrameCache] = {}
+        self._extra_scenario: Scenario | None = None
         if catalog is None:
             catalog = Catalog(checkpoint_dir, self.uploads, device, max_frames)
         elif catalog.uploads is None:
@@ -101,19 +108,24 @@ class ViewerApp:
         self.push_seconds: collections.deque[float] = collections.deque(maxlen=1000)
         """Wall time of the most recent frame pushes (scene, GUI, metrics, camera), s."""
         start_variants = variants or (["full"] if "full" in catalog.checkpoints else ["skinning"])
-        self._variants = [v for v in VARIANTS if v in start_variants]
+        if variants is None:
+            start_variants = [*start_variants, *self.extras.keys()]
+        self._variants = self._ordered(start_variants)
         setting = setting or catalog.default_setting()
 
         self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
         self.server.gui.configure_theme(control_width="large")
         self.scene = SceneView(self.server)
-        self.controls: Controls = build_controls(self.server.gui, catalog, setting, self._variants, self.display)
+        self.controls: Controls = build_controls(self.server.gui, catalog, setting, self._computed(), self.display)
         with self.controls.metrics_folder:
             self.metrics = MetricsPanel(self.server.gui)
         self._wire()
+        for extra in self.extras.items():
+            self._add_extra_checkbox(extra)
+        self._refresh_export_options()
         self.server.on_client_connect(self._on_connect)
         self.worker = RolloutWorker(catalog, self._on_worker_event)
-        self.worker.configure(setting, tuple(self._variants))
+        self.worker.configure(setting, tuple(self._computed()))
         self._stop = threading.Event()
         self._player = threading.Thread(target=self._play_loop, name="smln-viewer-playback", daemon=True)
         self._player.start()
@@ -148,32 +160,67 @@ class ViewerApp:
                 raise ValueError(f"unknown body shape {new.shape!r}")
             self.frame_index = 0
             self._needs_camera_reset = True
-            self.worker.configure(new, tuple(self._variants))
+            self.worker.configure(new, tuple(self._computed()))
             self._sync_pickers(new)
             return True
 
     def set_variants(self, variants: list[str]) -> None:
-        """Enable exactly these variants (in display order); unknown or unavailable ones are refused."""
-        bad = [v for v in variants if v not in self.catalog.available_variants()]
+        """Enable exactly these variants (in display order: the computed ones, then saved rollouts); unknown or
+        unavailable ones are refused."""
+        bad = [v for v in variants if v not in self.catalog.available_variants() and v not in self.extras]
         if bad:
             raise ValueError(f"variant(s) not available: {', '.join(bad)}")
         with self._lock:
-            self._variants = [v for v in VARIANTS if v in variants]
+            self._variants = self._ordered(variants)
             for v, box in self.controls.variants.items():
                 if box.value != (v in self._variants):
                     box.value = v in self._variants
-            labels = [VARIANT_LABELS[v] for v in self._variants] or ["—"]
-            self.controls.export_variant.options = labels
+            self._refresh_export_options()
             if self.worker.setting is not None:
-                self.worker.configure(self.worker.setting, tuple(self._variants))
+                self.worker.configure(self.worker.setting, tuple(self._computed()))
             self._dirty = True
 
+    def label(self, variant: str) -> str:
+        """Display name of a variant (a saved rollout's comes from its meta)."""
+        extra = self.extras.get(variant)
+        return extra.label if extra is not None else VARIANT_LABELS.get(variant, variant)
+
+    def add_extra(self, source: str | Path | bytes, name: str | None = None, enable: bool = True) -> ExtraRollout:
+        """Validate a saved rollout (a path or an upload's bytes) and offer it as a read-only variant.
+
+        Raises:
+            ExtraRolloutError: the file was refused (one-line reason); nothing changes.
+        """
+        extra = self.extras.add(source, name)
+        with self._lock:
+            self._add_extra_checkbox(extra)
+            if enable:
+                self.set_variants([*self._variants, extra.key])
+            else:
+                self._refresh_export_options()
+        return extra
+
+    def caches(self) -> dict[str, FrameCache]:
+        """Frame caches of the enabled variants: the worker's computed ones and the saved rollouts' (complete;
+        empty with ``error`` "other scene" when a rollout was made on another scene)."""
+        out = dict(self.worker.caches)
+        out.update({k: c for k, c in self._extra_caches.items() if k in self._variants})
+        return out
+
     def available_frames(self) -> int:
-        """Frames playable on the shared timeline: computed by every enabled variant (a variant that stopped on
-        an error no longer holds the others back; 0 before the scenario is ready)."""
+        """Frames playable on the shared timeline: computed by every enabled computed variant (a variant that
+        stopped on an error no longer holds the others back; 0 before the scenario is ready). Saved rollouts do
+        not hold the timeline back (past their length they hold their last frame); with only saved rollouts
+        enabled it is the longest one (capped at the clip's length)."""
         if not self.worker.ready():
             return 0
-        caches = [self.worker.caches.get(v) for v in self._variants]
+        computed = self._computed()
+        if not computed:
+            scenario = self.worker.scenario
+            self._sync_extra_caches(scenario)
+            lengths = [len(self._extra_caches[v]) for v in self._variants if v in self._extra_caches]
+            return min(max(lengths, default=0), scenario.num_frames)
+        caches = [self.worker.caches.get(v) for v in computed]
         if any(c is None for c in caches):
             return 0
         running = [len(c) for c in caches if not c.error]
@@ -198,18 +245,30 @@ class ViewerApp:
 
     def _all_done(self) -> bool:
         caches = self.worker.caches
-        return self.worker.ready() and all(v in caches and caches[v].done for v in self._variants)
+        return self.worker.ready() and all(v in caches and caches[v].done for v in self._computed())
+
+    def _computed(self) -> list[str]:
+        """Enabled variants the worker computes (not saved rollouts)."""
+        return [v for v in self._variants if not is_extra(v)]
+
+    def _ordered(self, variants: list[str] | tuple[str, ...]) -> list[str]:
+        return [v for v in VARIANTS if v in variants] + [k for k in self.extras.keys() if k in variants]
 
     def set_playing(self, playing: bool) -> None:
         self.playing = bool(playing)
         self.controls.play.label = "Pause" if self.playing else "Play"
 
     def export(self, variant: str, fmt: str) -> tuple[str, bytes]:
-        """The computed frames of ``variant`` as a download: (file name, bytes) in ``fmt`` (npz/obj/pc2/glb)."""
+        """The computed frames of ``variant`` as a download: (file name, bytes) in ``fmt`` (npz/obj/pc2/glb);
+        a saved rollout is converted whole from its own arrays."""
+        extra = self.extras.get(variant)
+        if extra is not None:
+            suffix, data = export_bytes(extra.rollout, fmt, include_body=fmt == "glb")
+            return Path(extra.source).stem + suffix, data
         scenario = self._scenario
         cache = self.worker.caches.get(variant)
         if scenario is None or cache is None or len(cache) == 0:
-            raise ValueError(f"no computed frames for {VARIANT_LABELS.get(variant, variant)} yet")
+            raise ValueError(f"no computed frames for {self.label(variant)} yet")
         frames = list(cache.frames)
         s = scenario.setting
         meta = {"outfit": s.outfit, "clip": s.clip, "shape": s.shape, "variant": variant, "complete": cache.done}
@@ -244,6 +303,7 @@ class ViewerApp:
         c.shape.on_update(self._on_shape)
         c.upload_bvh.on_upload(self._on_upload_bvh)
         c.upload_obj.on_upload(self._on_upload_obj)
+        c.upload_rollout.on_upload(self._on_upload_rollout)
         c.play.on_click(self._on_play)
         c.frame.on_update(self._on_frame)
         c.steps.on_click(self._on_step)
@@ -321,6 +381,33 @@ class ViewerApp:
         self.set_setting(outfit=key)
         self.notify("Garment loaded", f"{f.name} is now shown", client=event.client, error=False)
 
+    @_guarded
+    def _on_upload_rollout(self, event: Any) -> None:
+        f = event.target.value
+        try:
+            extra = self.add_extra(f.content, f.name)
+        except ExtraRolloutError as exc:
+            self.notify("Rollout refused", str(exc), client=event.client)
+            return
+        where = ("" if extra.matches(self.setting) else
+                 f"; it was made on {extra.scene_text()}: pick that scene to see it")
+        self.notify("Rollout loaded", f"{f.name}: {extra.num_frames} frames, shown as “{extra.label}”{where}",
+                    client=event.client, error=False)
+
+    def _add_extra_checkbox(self, extra: ExtraRollout) -> None:
+        """A Variants checkbox for a saved rollout (under the upload button)."""
+        with self.controls.variants_folder:
+            box = self.server.gui.add_checkbox(
+                extra.label, extra.key in self._variants,
+                hint=f"saved rollout {extra.source}: {extra.num_frames} frames on {extra.scene_text()} (read-only)")
+        box.on_update(self._on_variant)
+        self.controls.variants[extra.key] = box
+
+    def _refresh_export_options(self) -> None:
+        labels = [self.label(v) for v in self._variants] or ["—"]
+        if list(self.controls.export_variant.options) != labels:
+            self.controls.export_variant.options = labels
+
     def _refresh_options(self) -> None:
         c = self.controls
         c.outfit_keys = dict(self.catalog.outfits())
@@ -383,7 +470,7 @@ class ViewerApp:
     @_guarded
     def _on_download(self, event: Any, fmt: str) -> None:
         label = self.controls.export_variant.value
-        variant = next((v for v in self._variants if VARIANT_LABELS[v] == label), None)
+        variant = next((v for v in self._variants if self.label(v) == label), None)
         if variant is None:
             raise ValueError("enable a variant to export")
         note = event.client.add_notification("Exporting", f"{label} as {fmt.upper()} …", loading=True,
@@ -432,12 +519,12 @@ class ViewerApp:
         if scenario is None:
             self.controls.status.content = "loading the outfit and the clip …"
             return clock
-        variants = [v for v in self._variants]
+        variants = self._shown(scenario)
         if [v for v in self.scene.views] != variants:
-            self.scene.sync(scenario, variants, self.display)
-            self.metrics.rebuild(variants, scenario.num_frames)
+            self.scene.sync(scenario, variants, self.display, self._specs(scenario))
+            self.metrics.rebuild(variants, scenario.num_frames, self._labels())
             self._dirty = True
-        caches = self.worker.caches
+        caches = self.caches()
         n = self.available_frames()
         all_done = all(v in caches and caches[v].done for v in variants)
         if self.frame_index > max(n - 1, 0):  # a variant was added: wait for it on the shared timeline
@@ -456,15 +543,16 @@ class ViewerApp:
                     self._dirty = True
         else:
             clock = 0.0
-        self._update_status(scenario, caches, variants, n)
-        self.metrics.update(caches, self.frame_index)  # throttled; catches up on computed frames
+        self._update_status(scenario, caches, list(self._variants), n)
+        self.metrics.update(caches, self.frame_index, count=n)  # throttled; catches up on computed frames
         if not self._dirty:
             return clock
         self._dirty = False
         t0 = time.perf_counter()
         idx = self.frame_index
         frames = {v: caches[v].get(idx) if v in caches else None for v in variants}
-        status = {v: self._variant_status(caches.get(v), idx, scenario.num_frames) for v in variants}
+        status = {v: self._extra_status(v, idx) if is_extra(v) else
+                  self._variant_status(caches.get(v), idx, scenario.num_frames) for v in variants}
         with self.server.atomic():
             self.scene.apply_display(self.display)
             self.scene.show(frames, self.display, status)
@@ -475,9 +563,43 @@ class ViewerApp:
         self.push_seconds.append(time.perf_counter() - t0)
         return clock
 
+    def _sync_extra_caches(self, scenario: Scenario | None) -> None:
+        """One complete cache per saved rollout for ``scenario`` (empty if the rollout is of another scene)."""
+        if scenario is not self._extra_scenario:
+            self._extra_caches, self._extra_scenario = {}, scenario
+        for extra in self.extras.items():
+            if extra.key in self._extra_caches:
+                continue
+            ok = extra.matches(scenario.setting) if scenario is not None else False
+            self._extra_caches[extra.key] = FrameCache(extra.key, extra.num_frames, list(extra.frames) if ok else [],
+                                                       done=True, error="" if ok else "other scene")
+
+    def _shown(self, scenario: Scenario | None) -> list[str]:
+        """Enabled variants drawn on ``scenario``: a saved rollout of another scene is hidden (the status line
+        and its checkbox's hint say which scene it is for)."""
+        self._sync_extra_caches(scenario)
+        return [v for v in self._variants if not is_extra(v) or not self._extra_caches[v].error]
+
+    def _specs(self, scenario: Scenario) -> dict[str, ViewSpec]:
+        """How to draw the saved rollouts (from their own arrays)."""
+        return {e.key: ViewSpec(e.label, e.geometry) for e in self.extras.items()}
+
+    def _labels(self) -> dict[str, str]:
+        return {e.key: e.label for e in self.extras.items()}
+
+    def _extra_status(self, variant: str, idx: int) -> str:
+        extra = self.extras.get(variant)
+        if extra is None:
+            return ""
+        note = f"{extra.note}\n" if extra.note else ""
+        if idx >= extra.num_frames:
+            return note + f"saved rollout: holding its last frame ({extra.num_frames - 1})"
+        return note + f"saved rollout ({extra.num_frames} frames)"
+
     def _on_new_scenario(self, scenario: Scenario | None) -> None:
         self._scenario = scenario
-        self.scene.sync(scenario, list(self._variants), self.display)
+        shown = self._shown(scenario)
+        self.scene.sync(scenario, shown, self.display, self._specs(scenario) if scenario is not None else None)
         c = self.controls
         for vis, rgb in c.layer_handles:
             vis.remove()
@@ -490,7 +612,7 @@ class ViewerApp:
             vis.on_update(self._on_display)
             rgb.on_update(self._on_display)
         c.frame.max = max(scenario.num_frames - 1, 1)
-        self.metrics.rebuild(list(self._variants), scenario.num_frames)
+        self.metrics.rebuild(shown, scenario.num_frames, self._labels())
         self.frame_index = 0
         self._dirty = True
 
@@ -508,15 +630,23 @@ class ViewerApp:
         return ""
 
     def _update_status(self, scenario: Scenario, caches: dict[str, Any], variants: list[str], n: int) -> None:
-        total = scenario.num_frames * max(len(variants), 1)
-        done = sum(min(len(caches[v]), scenario.num_frames) if v in caches else 0 for v in variants)
+        computed = [v for v in variants if not is_extra(v)]
+        total = scenario.num_frames * max(len(computed), 1)
+        done = sum(min(len(caches[v]), scenario.num_frames) if v in caches else 0 for v in computed)
+        if not computed:
+            done = total
         value = 100.0 * done / max(total, 1)
         c = self.controls
         if abs(c.progress.value - value) > 0.5 or (value >= 100.0 and c.progress.value < 100.0):
             c.progress.value = value
             c.progress.animated = value < 100.0
         parts = [f"{VARIANT_LABELS[v]} {len(caches[v]) if v in caches else 0}/{scenario.num_frames}"
-                 for v in variants]
+                 for v in computed]
+        for v in variants:
+            if is_extra(v):
+                e = self.extras.get(v)
+                parts.append(f"{e.label} saved, {e.num_frames} frames" if e.matches(scenario.setting)
+                             else f"{e.label} hidden: made on {e.scene_text()}")
         text = f"frame **{self.frame_index}** of {scenario.num_frames} · computed: " + ", ".join(parts)
         if c.status.content != text:
             c.status.content = text
@@ -524,7 +654,7 @@ class ViewerApp:
     # ---- camera ----------------------------------------------------------------------------------------------
     def _spread(self) -> float:
         """Camera distance factor: wider for more variants side by side."""
-        return 1.0 + 0.3 * max(len(self._variants) - 1, 0)
+        return 1.0 + 0.3 * max(len(self.scene.views) - 1, 0)
 
     def _place_camera(self, client: viser.ClientHandle, centre: np.ndarray) -> None:
         look = centre + np.array([0.0, 0.0, -0.05])
