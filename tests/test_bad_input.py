@@ -489,6 +489,18 @@ def test_fuzz_bvh_parser(tmp_path_factory: pytest.TempPathFactory, data: bytes) 
     FUZZ_OUTCOMES["bvh: loaded"] += 1
     assert clip.num_frames > 0
     assert np.isfinite(clip.local_rotations).all() and np.isfinite(clip.root_positions).all()
+    # what the CLI and the viewer do next: retarget onto the body (resampled to 30 fps)
+    from smln.body import load_body
+    from smln.motion import retarget
+
+    try:
+        motion = retarget(clip, load_body(SHAPE))
+    except MotionError as exc:
+        _assert_one_line(str(exc))
+        FUZZ_OUTCOMES["bvh: loaded, retarget MotionError"] += 1
+        return
+    FUZZ_OUTCOMES["bvh: loaded and retargeted"] += 1
+    assert torch.isfinite(motion.world_orientations).all() and torch.isfinite(motion.root_positions).all()
 
 
 _OBJ_BASE = _small_garment_obj()
@@ -522,3 +534,40 @@ def test_fuzz_inputs_are_real(tmp_path: Path) -> None:
     path = tmp_path / "seed.obj"
     path.write_bytes(_OBJ_BASE)
     assert Garment.from_obj(path, load_body(SHAPE)).num_vertices > 50
+
+
+@pytest.mark.slow
+def test_viewer_keeps_its_scene_on_refused_uploads(garment_obj: bytes) -> None:
+    """Refused uploads through the viewer's own upload callbacks: a one-line notification to the browser that
+    sent it, the setting and the computed frames stay as they were."""
+    import socket
+    from types import SimpleNamespace
+
+    from app.server import ViewerApp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    app = ViewerApp(port=port, checkpoint_dir=None, max_frames=5)
+    notes: list[tuple[str, str, object]] = []
+    app.notify = lambda title, body, client=None, error=True: notes.append((title, body, client))  # type: ignore[method-assign]
+    try:
+        assert app.worker.wait_frames(5, timeout=120)
+        setting, scenario = app.setting, app.worker.scenario
+        browser = object()
+        uploads = [("bvh", "junk.bvh", os.urandom(3000)), ("bvh", "nan.bvh", _bvh_with_value(10, "nan").encode()),
+                   ("obj", "junk.obj", os.urandom(3000)), ("obj", "points.obj", b"v 0 0 0\n"),
+                   ("obj", "big.obj", b"#" * (MAX_OBJ_BYTES + 1))]
+        for kind, name, data in uploads:
+            event = SimpleNamespace(target=SimpleNamespace(value=SimpleNamespace(name=name, content=data)),
+                                    client=browser)
+            (app._on_upload_bvh if kind == "bvh" else app._on_upload_obj)(event)
+            title, body, client = notes[-1]
+            assert "refused" in title and name in body and client is browser
+            _assert_one_line(body)
+            assert app.setting == setting and app.worker.scenario is scenario
+        assert len(notes) == len(uploads)
+        assert app.uploads.clips() == [] and app.uploads.garments() == []
+        assert list(app.uploads.directory.iterdir()) == []
+    finally:
+        app.stop()
