@@ -199,6 +199,19 @@ def load_rollout_npz(path: str | Path | IO[bytes]) -> Rollout:
         data = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ExportError(f"{path}: not a rollout NPZ ({str(exc) or type(exc).__name__})") from exc
+    try:
+        r = _read_arrays(data, path)
+    except ExportError:
+        raise
+    except (ValueError, TypeError, KeyError, OverflowError, EOFError, OSError, zipfile.BadZipFile) as exc:
+        first = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
+        raise ExportError(f"{path}: not a rollout NPZ ({type(exc).__name__}: {first})") from None
+    _check_shapes(r, path)
+    return r
+
+
+def _read_arrays(data: Any, path: Any) -> Rollout:
+    """The arrays of an open NPZ as a :class:`Rollout` (conversion errors propagate)."""
     with data:
         missing = [k for k in REQUIRED_KEYS if k not in data.files]
         if missing:
@@ -227,12 +240,30 @@ def load_rollout_npz(path: str | Path | IO[bytes]) -> Rollout:
             fps=float(get("fps", np.float32(30.0))),
             meta=json.loads(str(get("meta", np.array("{}")))),
         )
-    if r.layer_index.shape != (v,) or r.body_vertices.shape[0] != t:
-        raise ExportError(f"{path}: inconsistent shapes (layer_index {r.layer_index.shape}, V = {v}, "
-                          f"body frames {r.body_vertices.shape[0]}, T = {t})")
-    if r.faces.size and (r.faces.min() < 0 or r.faces.max() >= v):
-        raise ExportError(f"{path}: faces index outside the {v} garment vertices")
     return r
+
+
+def _check_shapes(r: Rollout, path: Any) -> None:
+    """Every array's shape against (T, V) and the index ranges; :class:`ExportError` names the first problem."""
+    t, v = r.garment_positions.shape[:2]
+    bv = r.body_vertices
+    if r.layer_index.shape != (v,) or bv.ndim != 3 or bv.shape[0] != t or bv.shape[2] != 3:
+        raise ExportError(f"{path}: inconsistent shapes (layer_index {r.layer_index.shape}, V = {v}, "
+                          f"body_vertices {bv.shape}, T = {t})")
+    for name, faces, n in (("faces", r.faces, v), ("body_faces", r.body_faces, bv.shape[1])):
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ExportError(f"{path}: {name} {faces.shape} is not (F, 3)")
+        if faces.size and (faces.min() < 0 or faces.max() >= n):
+            raise ExportError(f"{path}: {name} index outside the {n} vertices")
+    if r.layer_index.size and (r.layer_index.min() < 0 or r.layer_index.max() >= 64):
+        raise ExportError(f"{path}: layer_index outside 0..63")
+    expected = {"repulsion_acceleration": (t, v, 3), "layer_penetration": (t, v), "body_penetration": (t, v),
+                "frame_index": (t,), "metrics": (t, len(r.metric_names))}
+    for name, shape in expected.items():
+        if getattr(r, name).shape != shape:
+            raise ExportError(f"{path}: {name} {getattr(r, name).shape} is not {shape}")
+    if not isinstance(r.meta, dict) or not np.isfinite(r.fps) or r.fps <= 0:
+        raise ExportError(f"{path}: meta must be a JSON object and fps positive (fps {r.fps})")
 
 
 def _obj_text(vertices: np.ndarray, faces: np.ndarray, groups: Iterable[tuple[str, np.ndarray]] = ()) -> str:
