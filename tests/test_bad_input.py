@@ -571,3 +571,92 @@ def test_viewer_keeps_its_scene_on_refused_uploads(garment_obj: bytes) -> None:
         assert list(app.uploads.directory.iterdir()) == []
     finally:
         app.stop()
+
+
+def _real_rollout_arrays() -> dict[str, np.ndarray]:
+    """The arrays of a real rollout NPZ (3 skinned frames of a 2-layer outfit, coarse), as ``np.load`` gives them."""
+    import io
+
+    from smln.data_sampling import make_scene
+    from smln.evaluate import skinning_frames
+    from smln.export import save_rollout_npz
+
+    scene = make_scene("tshirt_jacket", SHAPE, "09_06_run", edge_length=0.05, max_frames=3)
+    buf = io.BytesIO()
+    save_rollout_npz(buf, list(skinning_frames(scene, 3)), scene.cloth, scene.body.faces,
+                     meta={"outfit": "tshirt_jacket", "clip": "09_06_run", "shape": SHAPE})
+    buf.seek(0)
+    with np.load(buf, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+_ROLLOUT = _real_rollout_arrays()
+_WEIRD_VALUES = [np.nan, np.inf, -1, 2**31 - 1, 1e30, 0]
+
+
+@st.composite
+def mutated_rollout(draw: st.DrawFn) -> dict[str, np.ndarray]:
+    """A real rollout's arrays with 1-3 of them deleted, reshaped, retyped or filled with odd values."""
+    arrays = dict(_ROLLOUT)
+    for _ in range(draw(st.integers(1, 3))):
+        key = draw(st.sampled_from(sorted(_ROLLOUT)))
+        kind = draw(st.sampled_from(["delete", "shape", "scalar", "string", "fill", "truncate", "dtype"]))
+        a = arrays.get(key, _ROLLOUT[key])
+        if kind == "delete":
+            arrays.pop(key, None)
+        elif kind == "shape":
+            shape = tuple(draw(st.lists(st.integers(0, 4), max_size=4)))
+            arrays[key] = np.zeros(shape, dtype=a.dtype if a.dtype.kind != "U" else np.float32)
+        elif kind == "scalar":
+            arrays[key] = np.array(draw(st.sampled_from(_WEIRD_VALUES)))
+        elif kind == "string":
+            arrays[key] = np.array(draw(st.sampled_from(["", "{", "[1, 2]", "null", "x" * 100, '{"outfit": 3}'])))
+        elif kind == "fill" and a.size and a.dtype.kind in "fiub":
+            b = a.astype(np.float64).copy()
+            idx = draw(st.integers(0, b.size - 1))
+            b.flat[idx] = draw(st.sampled_from(_WEIRD_VALUES))
+            arrays[key] = b.astype(a.dtype) if a.dtype.kind == "f" or np.isfinite(b).all() else b
+        elif kind == "truncate" and a.ndim:
+            arrays[key] = a[: draw(st.integers(0, max(len(a) - 1, 0)))]
+        elif kind == "dtype" and a.dtype.kind != "U":
+            arrays[key] = a.astype(draw(st.sampled_from([np.int8, np.float16, np.bool_, np.complex64])))
+    return arrays
+
+
+@_seeded
+@FUZZ_SETTINGS
+@given(arrays=mutated_rollout())
+def test_fuzz_rollout_npz(tmp_path_factory: pytest.TempPathFactory, arrays: dict[str, np.ndarray]) -> None:
+    """Structure-aware fuzzing of rollout NPZs (``smln export`` input, viewer rollout uploads): the library's
+    ``load_rollout_npz`` gives a rollout or ExportError, and what it accepts exports to OBJ and PC2; the viewer's
+    ``load_extra`` gives a saved rollout or ExtraRolloutError."""
+    import io
+    import warnings
+
+    from app.extras import ExtraRolloutError, load_extra
+    from smln.export import ExportError, export_bytes, load_rollout_npz
+
+    buf = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        np.savez_compressed(buf, **arrays)
+    data = buf.getvalue()
+    try:
+        r = load_rollout_npz(io.BytesIO(data))
+    except ExportError as exc:
+        _assert_one_line(str(exc))
+        FUZZ_OUTCOMES["npz: ExportError"] += 1
+    else:
+        FUZZ_OUTCOMES["npz: loaded"] += 1
+        for fmt in ("obj", "pc2"):
+            try:
+                export_bytes(r, fmt)
+            except ExportError:
+                FUZZ_OUTCOMES[f"npz: {fmt} ExportError"] += 1
+    try:
+        load_extra(data, "extra:1", "fuzz.npz")
+    except ExtraRolloutError as exc:
+        _assert_one_line(str(exc))
+        FUZZ_OUTCOMES["npz: viewer refused"] += 1
+    else:
+        FUZZ_OUTCOMES["npz: viewer accepted"] += 1
