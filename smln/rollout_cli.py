@@ -36,6 +36,8 @@ def run(argv: list[str] | None = None) -> Path:
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
     a = p.parse_args(argv)
     out = Path(a.out)
+    if out.suffix != ".npz":  # numpy appends .npz: check (and report) the file that will really be written
+        out = out.with_name(out.name + ".npz")
     if out.exists() and not a.force:
         raise FileExistsError(f"{out} exists; pass --force to overwrite it")
     torch.set_num_threads(a.threads)
