@@ -261,13 +261,22 @@ def test_cli_refuses_to_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[
         assert out.read_bytes() == b"keep me"
 
 
-def test_cli_body_without_npz_suffix_does_not_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``--out body`` writes ``body.npz`` (numpy adds the suffix): an existing ``body.npz`` must be protected too."""
-    (tmp_path / "body.npz").write_bytes(b"keep me")
-    code, _, err = run_cli(["body", "--motion", "05_01_walk", "--frames", "3", "--out", str(tmp_path / "body")], capsys)
-    assert (tmp_path / "body.npz").read_bytes() == b"keep me", "smln body overwrote body.npz without --force"
+@pytest.mark.parametrize("argv", [["body", "--motion", "05_01_walk", "--frames", "3"],
+                                  ["rollout", "--skinning", "--outfit", "tshirt_jacket", "--motion", "05_01_walk",
+                                   "--frames", "3"]], ids=["body", "rollout"])
+def test_cli_out_without_npz_suffix_does_not_overwrite(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                       argv: list[str]) -> None:
+    """``--out result`` writes ``result.npz`` (numpy adds the suffix): an existing ``result.npz`` is protected too,
+    and without one the message names the file really written."""
+    (tmp_path / "result.npz").write_bytes(b"keep me")
+    code, _, err = run_cli([*argv, "--out", str(tmp_path / "result")], capsys)
+    assert (tmp_path / "result.npz").read_bytes() == b"keep me", f"smln {argv[0]} overwrote result.npz"
     assert code == 2 and "--force" in err
     _assert_one_line(err)
+    (tmp_path / "result.npz").unlink()
+    code, out, err = run_cli([*argv, "--out", str(tmp_path / "result")], capsys)
+    assert code == 0, err
+    assert f"wrote {tmp_path / 'result.npz'}" in out and (tmp_path / "result.npz").is_file()
 
 
 def test_cli_bad_checkpoints(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
