@@ -72,7 +72,7 @@ def rollout(
     device: str | torch.device = "cpu",
     fallback: bool = False,
     initial_velocity: str = "skinned",
-    max_distance: float = 1.0,
+    max_distance: float = 0.4,
     max_strain: float = 1.0,
 ) -> Iterator[RolloutFrame]:
     """Animate ``cloth`` on a body clip with ``model``.
@@ -86,7 +86,8 @@ def rollout(
         device: "cpu" or "cuda".
         fallback: replace a diverged frame by skinning instead of raising.
         initial_velocity: "skinned" (frames 0, 1 skinned) or "zero" (frame 0 twice).
-        max_distance: divergence threshold on the distance to the skinned position, m.
+        max_distance: divergence threshold on the distance to the skinned position, m (0.4 m: beyond a skirt hem's
+            swing in a pirouette; a vertex farther away is a flying artefact and the frame falls back to skinning).
         max_strain: divergence threshold on the max edge strain *above the skinned state's own* at that frame
             (1.0 = an edge doubled beyond what skinning already gives; linear blend skinning of a T-pose garment
             already stretches some armpit edges by up to ~100 %).
