@@ -40,8 +40,9 @@ def main() -> None:
 
     from smln.checkpoint import load_checkpoint
 
-    n = max(a.frames) + 1
-    scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=n)
+    scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=max(a.frames) + 1)
+    n = scene.num_frames
+    a.frames = sorted({min(t, n - 1) for t in a.frames})
     methods: list[tuple[str, object | None]] = [("skinning", None)]
     for v in ("full", "no_repulsion_layer", "baseline"):
         path = Path(a.checkpoints) / v
