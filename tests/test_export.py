@@ -6,7 +6,6 @@ import argparse
 import io
 import struct
 import zipfile
-from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -22,21 +21,7 @@ from smln.export import (
     rollout_from_frames,
     save_rollout_npz,
 )
-
-
-@dataclass
-class _Frame:
-    """Duck-typed stand-in for smln.rollout.RolloutFrame."""
-
-    index: int
-    garment_positions: np.ndarray
-    body_vertices: np.ndarray
-    predicted_acceleration: np.ndarray
-    repulsion_acceleration: np.ndarray
-    layer_penetration: np.ndarray
-    body_penetration: np.ndarray
-    metrics: dict[str, float] = field(default_factory=dict)
-    fallback: bool = False
+from smln.rollout import RolloutFrame
 
 
 def _grid(n: int, z: float) -> tuple[np.ndarray, np.ndarray]:
@@ -60,12 +45,13 @@ def cloth_frames():
     frames = []
     for t in range(6):
         x = verts + np.float32(0.01 * t)
-        frames.append(_Frame(
+        frames.append(RolloutFrame(
             index=t, garment_positions=x, body_vertices=body_v + np.float32(t),
             predicted_acceleration=np.zeros_like(x),
             repulsion_acceleration=rng.normal(size=x.shape).astype(np.float32),
             layer_penetration=rng.random(len(x)) < 0.2, body_penetration=rng.random(len(x)) < 0.1,
             metrics={"l_coll": float(t), "h_coll": 0.5 * t} | ({"strain_mean": 0.01} if t else {}),
+            fallback=False,
         ))
     return frames, faces, layer, body_f
 
