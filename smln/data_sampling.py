@@ -121,8 +121,11 @@ class SceneCache:
             self._bodies.popitem(last=False)
         return seq
 
-    def get(self, outfit: str, shape: str, motion: str) -> Scene:
+    def get(self, outfit: str, shape: str, motion: str, window: tuple[int, int] | None = None) -> Scene:
+        """The scene; with ``window=(start, stop)`` only frames start:stop of the clip (skinning is the cost)."""
         cloth, rest, topo = self.outfit(outfit, shape)
         seq = self.body(shape, motion)
+        if window is not None:
+            seq = seq.slice(*window)
         skinned = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights, seq.transforms)
         return Scene(outfit, shape, motion, cloth, seq, skinned, rest, topo)

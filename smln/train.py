@@ -63,6 +63,8 @@ class TrainConfig:
     rollout_max: int = 48
     rollout_growth_steps: int = 6000
     noise_std: float = 0.003
+    settle_steps: int = 1
+    init_from: str | None = None
     save_every: int = 250
     validate_every: int = 500
     validation_frames: int = 120
@@ -121,15 +123,18 @@ class EpisodeSampler:
         return int(round(c.rollout_start + frac * (c.rollout_max - c.rollout_start)))
 
     def draw(self, step: int, cache: SceneCache) -> tuple[Scene, int, int]:
+        """(scene cut to the episode's frames, first step's frame index in it, episode length)."""
         outfit = self.outfits[self.rng.integers(len(self.outfits))]
         shape = self.shapes[self.rng.integers(len(self.shapes))]
         motion = self.motions[self.rng.integers(len(self.motions))]
-        scene = cache.get(outfit, shape, motion)
+        num_frames = cache.body(shape, motion).num_frames
         length = self.rollout_length(step)
-        last_start = max(1, scene.num_frames - 2 - length)
+        last_start = max(1, num_frames - 2 - length)
         start = int(self.rng.integers(1, last_start + 1))
-        length = min(length, scene.num_frames - 1 - start)
-        return scene, start, length
+        length = min(length, num_frames - 1 - start)
+        # only the episode's frames are skinned: the scene is cut to [start - 1, start + length]
+        scene = cache.get(outfit, shape, motion, window=(start - 1, start + length + 1))
+        return scene, 1, length
 
 
 # ------------------------------------------------------------------------------------------------- training
@@ -200,21 +205,38 @@ class Trainer:
         return float(t.item())
 
     def run_episode(self) -> list[dict[str, float]]:
+        """One episode from skinned states; the first ``settle_steps`` steps relax without momentum (as the
+        rollout does, :func:`smln.rollout.rollout`): after them the velocity is reset to the skinning's."""
         scene, start, length = self.sampler.draw(self.step, self.cache)
         length = int(self._agree(length, "min"))
-        x_prev, x_cur = scene.skinned[start - 1].clone(), scene.skinned[start].clone()
+        skinned = scene.skinned
+        x_prev, x_cur = skinned[start - 1].clone(), skinned[start].clone()
         logs = []
         for k in range(length):
             t = start + k
             x_next, terms = self.train_step(scene, t, x_prev, x_cur)
-            bad = not torch.isfinite(x_next).all() or (x_next - scene.skinned[t + 1]).norm(dim=-1).max() > 1.0
+            bad = not torch.isfinite(x_next).all() or (x_next - skinned[t + 1]).norm(dim=-1).max() > 1.0
             if self._agree(float(bad), "max") > 0:
                 terms["reset"] = 1.0
                 logs.append(terms)
                 break  # diverged: start a fresh episode from skinning
-            x_prev, x_cur = x_cur, x_next
+            if k < self.cfg.settle_steps:
+                x_prev, x_cur = x_next - (skinned[t + 1] - skinned[t]), x_next
+            else:
+                x_prev, x_cur = x_cur, x_next
             logs.append(terms)
         return logs
+
+    def init_from(self, path: str) -> None:
+        """Start from a checkpoint's weights (and its step count, so the lr and rollout-length schedules go on
+        from there); the optimiser starts fresh. The checkpoint's architecture must match this run's."""
+        from smln.checkpoint import load_checkpoint
+
+        model, card = load_checkpoint(path)
+        if model.config.to_dict() != self.model.config.to_dict():
+            raise ValueError(f"{path}: architecture differs from this run's model config")
+        self.model.load_state_dict(model.state_dict())
+        self.step = int(card.get("training", {}).get("steps", 0))
 
     # -- validation ------------------------------------------------------------------------------------------
     def validate(self) -> dict[str, float]:
@@ -407,6 +429,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--save-every", type=int)
     p.add_argument("--validate-every", type=int)
     p.add_argument("--rollout-max", type=int)
+    p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -418,7 +441,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     for flag, key in (("variant", "variant"), ("minutes", "minutes"), ("max_steps", "max_steps"), ("seed", "seed"),
                       ("lr", "lr"), ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
-                      ("rollout_max", "rollout_max")):
+                      ("rollout_max", "rollout_max"), ("init_from", "init_from")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args
@@ -432,6 +455,8 @@ def train(argv: list[str] | None = None) -> Trainer:
         if not trainer.state_path().exists():
             raise FileNotFoundError(f"nothing to resume: {trainer.state_path()} does not exist")
         trainer.load_state()
+    elif cfg.init_from:
+        trainer.init_from(cfg.init_from)
     trainer.fit()
     return trainer
 

@@ -73,3 +73,34 @@ def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=Path(__file__).parents[1])
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
     assert res.stdout.count("DDP-OK") == 2
+
+
+@pytest.mark.slow
+def test_episode_window_matches_the_full_clip():
+    from smln.data_sampling import SceneCache
+
+    cache = SceneCache(edge_length=0.05)
+    full = cache.get(_outfit(), "female_average", "02_01_walk")
+    cut = cache.get(_outfit(), "female_average", "02_01_walk", window=(7, 19))
+    assert cut.num_frames == 12 and cut.skinned.shape[0] == 12
+    torch.testing.assert_close(cut.skinned, full.skinned[7:19])
+    torch.testing.assert_close(cut.body.vertices, full.body.vertices[7:19])
+
+
+@pytest.mark.slow
+def test_init_from_checkpoint_keeps_weights_and_step(tmp_path):
+    common = ["--outfits", _outfit(), *TINY]
+    first = train(["--out", str(tmp_path / "a"), "--max-steps", "4", *common])
+    from smln.checkpoint import load_checkpoint
+
+    _, card = load_checkpoint(tmp_path / "a" / "last")
+    assert card["training"]["steps"] == first.step
+    # zero further steps: the new run holds exactly the checkpoint's weights and step
+    second = train(["--out", str(tmp_path / "b"), "--max-steps", str(first.step), "--init-from",
+                    str(tmp_path / "a" / "last"), *common])
+    assert second.step == first.step
+    assert torch.equal(_params(second), _params(first))
+    third = train(["--out", str(tmp_path / "c"), "--max-steps", str(first.step + 2), "--init-from",
+                   str(tmp_path / "a" / "last"), *common])
+    assert third.step >= first.step + 2
+    assert not torch.equal(_params(third), _params(first))
