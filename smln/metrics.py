@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from smln.geometry import build_tree, vertex_normals
+from smln.geometry import build_tree
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -71,12 +71,54 @@ def _np32(a: torch.Tensor | np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def _vertex_normals_np(x: np.ndarray, faces: torch.Tensor) -> np.ndarray:
-    return vertex_normals(torch.from_numpy(x), faces).numpy()
+def _np_index(a: torch.Tensor | np.ndarray) -> np.ndarray:
+    if isinstance(a, torch.Tensor):
+        a = a.detach().cpu().numpy()
+    return np.asarray(a, dtype=np.int64)
 
 
-def _normalize(v: torch.Tensor) -> torch.Tensor:
-    return v / (torch.linalg.norm(v, dim=1, keepdim=True) + 1e-12)
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of coordinate-major (3, N) arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _face_cross(xt: np.ndarray, ft: np.ndarray) -> np.ndarray:
+    """(x1 - x0) x (x2 - x0) of each face (norm 2 * area), coordinate-major.
+
+    Args:
+        xt: (3, V) positions; ft: (3, F) int64 face corners.
+
+    Returns:
+        (3, F), dtype of ``xt``.
+    """
+    p0 = np.take(xt, ft[0], axis=1)
+    a = np.take(xt, ft[1], axis=1) - p0
+    b = np.take(xt, ft[2], axis=1) - p0
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _normal_sums_at(
+    xt: np.ndarray, ft: np.ndarray, idx: np.ndarray, cross: np.ndarray | None = None
+) -> np.ndarray:
+    """Unnormalised area-weighted vertex normals of the vertices ``idx``: (3, N) float64.
+
+    The sum of the cross products (norm 2 * area) of the faces around each vertex, as in
+    :func:`smln.geometry.vertex_normals`. Only the faces touching a vertex of ``idx`` are accumulated: those
+    vertices get their full sums and nothing else is read.
+
+    Args:
+        xt: (3, V) positions; ft: (3, F) int64 face corners; idx: (N,) vertex indices;
+        cross: (3, F) the faces' cross products if already computed.
+    """
+    n = xt.shape[1]
+    need = np.zeros(n, dtype=bool)
+    need[idx] = True
+    sel = np.take(need, ft[0]) | np.take(need, ft[1]) | np.take(need, ft[2])
+    fs = np.compress(sel, ft, axis=1)
+    c = _face_cross(xt, fs) if cross is None else np.compress(sel, cross, axis=1)
+    corners = fs.ravel()
+    acc = np.stack([np.bincount(corners, weights=np.tile(c[k], 3), minlength=n) for k in range(3)])
+    return np.take(acc, idx, axis=1)
 
 
 def _layersnet_loss(d: np.ndarray, dist: np.ndarray) -> float:
@@ -84,10 +126,6 @@ def _layersnet_loss(d: np.ndarray, dist: np.ndarray) -> float:
     v = np.where((d >= -LAYERSNET_RADIUS) & (dist < LAYERSNET_RADIUS), v, 0.0)
     n = int(np.count_nonzero(v))
     return float(np.dot(v, v) / n) if n else 0.0
-
-
-def _signed(x: np.ndarray, ref: np.ndarray, normals: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", x - ref[idx], normals[idx])
 
 
 def frame_metrics(
@@ -101,14 +139,19 @@ def frame_metrics(
 ) -> FrameMetrics:
     """All metrics of one frame (definitions in the module docstring).
 
+    Vectorised numpy/scipy on the CPU, single-threaded unless ``workers`` says otherwise. Without
+    ``body_normals`` only the normals of the body vertices that are some cloth vertex's nearest are computed
+    (from the faces around them: the same values as :func:`smln.geometry.vertex_normals` there).
+
     Args:
         x: (V, 3) cloth positions, meters (Cloth vertex order).
         body: (Vb, 3) body vertices at the same frame, meters.
         rest: :class:`~smln.losses.rest.ClothRest` (faces, edges, rest lengths, hinges, layer slices).
         body_faces: (Fb, 3) int64, needed unless ``body_normals`` is given.
-        body_normals: (Vb, 3) unit outward body vertex normals at this frame (skips computing them).
-        body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k).
-        workers: threads for the KD-tree queries (scipy ``workers``).
+        body_normals: (Vb, 3) unit outward body vertex normals at this frame (:func:`smln.geometry.vertex_normals`).
+        body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k; e.g.
+            shared with the graph build of the next step, see :func:`smln.rollout.rollout`).
+        workers: threads for the KD-tree queries (scipy ``workers``; -1 = all cores).
 
     Returns:
         :class:`FrameMetrics`.
@@ -133,17 +176,21 @@ def frame_metrics(
         values.update(nan=1.0, exploded=1.0)
         return FrameMetrics(values, no, no.copy(), np.zeros(nv, dtype=np.int64))
 
-    # body: H-Coll and the LayersNet collision loss
-    if body_normals is None:
-        if body_faces is None:
-            raise ValueError("frame_metrics needs body_faces or body_normals")
-        bf = torch.as_tensor(np.asarray(body_faces), dtype=torch.long)
-        bn = _vertex_normals_np(b, bf)
-    else:
-        bn = _np32(body_normals)
+    # body: H-Coll and the LayersNet collision loss. Coordinate-major (3, N) arrays and np.take: row gathers
+    # and reductions over an axis of length 3 are several times slower in numpy.
+    if body_normals is None and body_faces is None:
+        raise ValueError("frame_metrics needs body_faces or body_normals")
+    xt = np.ascontiguousarray(x.T)
+    bt = np.ascontiguousarray(b.T)
     tree = body_tree if body_tree is not None else build_tree(b)
     bdist, bidx = tree.query(x, k=1, workers=workers)
-    d_body = _signed(x, b, bn, bidx)
+    bidx = np.asarray(bidx, dtype=np.int64)
+    if body_normals is None:
+        a = _normal_sums_at(bt, np.ascontiguousarray(_np_index(body_faces).T), bidx)
+        bn = (a / np.sqrt(_dot3(a, a) + 1e-12)).astype(np.float32)  # as smln.geometry.vertex_normals
+    else:
+        bn = np.take(_np32(body_normals), bidx, axis=0).T
+    d_body = _dot3(xt - np.take(bt, bidx, axis=1), bn)
     body_pen = d_body < 0.0
 
     values: dict[str, float] = {
@@ -152,35 +199,36 @@ def frame_metrics(
     }
 
     # cloth face cross products (2 area * normal): face normals for bend, vertex normals for the layers
-    faces = rest.faces.cpu()
-    f = faces.numpy()
-    x0 = x[f[:, 0]]
-    fc = np.cross(x[f[:, 1]] - x0, x[f[:, 2]] - x0)
-    corners = faces.T.reshape(-1)
+    ft = np.ascontiguousarray(rest.faces.cpu().numpy().T)
+    fc = _face_cross(xt, ft)
 
     # layers: per adjacent pair, and outermost against the union of the inner layers
     layer_pen = no.copy()
     if nl > 1:
-        cn = _normalize(torch.zeros(nv, 3).index_add_(0, corners, torch.from_numpy(fc).repeat(3, 1))).numpy()
-        trees = [build_tree(x[s]) for s in rest.layer_slices[:-1]]
-        outer = rest.layer_slices[-1]
+        sl = rest.layer_slices
+        trees = [build_tree(x[s]) for s in sl[:-1]]
+        # (query layer, inner layer): the adjacent pairs, then the outermost against the farther inner layers
+        pairs = [(k, k - 1) for k in range(1, nl)] + [(nl - 1, k) for k in range(nl - 2)]
+        found = []  # loops over layers (2-3), not vertices
+        for q, r in pairs:
+            dist, idx = trees[r].query(x[sl[q]], k=1, workers=workers)
+            found.append((dist, np.asarray(idx, dtype=np.int64) + sl[r].start))
+        a = _normal_sums_at(xt, ft, np.concatenate([g for _, g in found]), cross=fc)
+        cn = (a / (np.sqrt(_dot3(a, a)) + 1e-12)).astype(np.float32)
+        start = 0
         best_d = best_signed = np.zeros(0)
-        for k in range(1, nl):  # a loop over layers (2-3), not vertices
-            s_in, s_out = rest.layer_slices[k - 1], rest.layer_slices[k]
-            xo = x[s_out]
-            dist, idx = trees[k - 1].query(xo, k=1, workers=workers)
-            d = _signed(xo, x[s_in], cn[s_in], idx)
-            layer_pen[s_out] = d < 0.0
-            values[f"l_coll_{k}_{k - 1}"] = 100.0 * float((d < 0.0).mean())
-            if k == nl - 1:
-                best_d, best_signed = dist, d
-        xo = x[outer]
-        for k in range(nl - 2):  # outermost vs the other inner layers: the union's nearest is the closest
-            s_in = rest.layer_slices[k]
-            dist, idx = trees[k].query(xo, k=1, workers=workers)
-            closer = dist < best_d
-            best_d = np.where(closer, dist, best_d)
-            best_signed = np.where(closer, _signed(xo, x[s_in], cn[s_in], idx), best_signed)
+        for (q, r), (dist, g) in zip(pairs, found, strict=True):
+            d = _dot3(xt[:, sl[q]] - np.take(xt, g, axis=1), cn[:, start : start + len(g)])
+            start += len(g)
+            if r == q - 1:
+                layer_pen[sl[q]] = d < 0.0
+                values[f"l_coll_{q}_{r}"] = 100.0 * float((d < 0.0).mean())
+                if q == nl - 1:
+                    best_d, best_signed = dist, d
+            else:  # the union's nearest is the closest of the per-layer nearest
+                closer = dist < best_d
+                best_d = np.where(closer, dist, best_d)
+                best_signed = np.where(closer, d, best_signed)
         values["l_coll"] = 100.0 * float((best_signed < 0.0).mean())
         values["layer_collision_loss"] = _layersnet_loss(best_signed, best_d)
     else:
@@ -188,21 +236,24 @@ def frame_metrics(
         values["layer_collision_loss"] = 0.0
 
     # bend (PBNS): 1 - cos between adjacent face normals
-    fn = fc / (np.linalg.norm(fc, axis=1, keepdims=True) + 1e-12)
-    hf = rest.hinge_faces.cpu().numpy()
-    values["bend"] = float(1.0 - np.einsum("ij,ij->i", fn[hf[:, 0]], fn[hf[:, 1]]).mean()) if len(hf) else 0.0
+    hf = np.ascontiguousarray(rest.hinge_faces.cpu().numpy().T)
+    if hf.shape[1]:
+        fn = fc / (np.sqrt(_dot3(fc, fc)) + 1e-12)
+        values["bend"] = float(1.0 - _dot3(np.take(fn, hf[0], axis=1), np.take(fn, hf[1], axis=1)).mean())
+    else:
+        values["bend"] = 0.0
 
     # edge strain
-    e = rest.edges.cpu().numpy()
-    length = np.linalg.norm(x[e[:, 1]] - x[e[:, 0]], axis=1)
-    strain = np.abs(length / rest.rest_length.cpu().numpy() - 1.0)
+    et = np.ascontiguousarray(rest.edges.cpu().numpy().T)
+    de = np.take(xt, et[1], axis=1) - np.take(xt, et[0], axis=1)
+    strain = np.abs(np.sqrt(_dot3(de, de)) / rest.rest_length.cpu().numpy() - 1.0)
     values["strain_mean"] = float(strain.mean())
     values["strain_max"] = float(strain.max())
 
     exploded = values["strain_max"] > EXPLODED_STRAIN or float(bdist.max()) > EXPLODED_DISTANCE
     values["nan"] = 0.0
     values["exploded"] = float(exploded)
-    return FrameMetrics(values, body_pen, layer_pen, np.asarray(bidx, dtype=np.int64))
+    return FrameMetrics(values, body_pen, layer_pen, bidx)
 
 
 MAX_KEYS = ("h_coll", "l_coll", "strain_max", "collision_loss", "layer_collision_loss", "nan", "exploded")

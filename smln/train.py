@@ -64,6 +64,7 @@ class TrainConfig:
     rollout_growth_steps: int = 6000
     noise_std: float = 0.003
     settle_steps: int = 1
+    ema_decay: float = 0.999
     init_from: str | None = None
     save_every: int = 250
     validate_every: int = 500
@@ -159,6 +160,12 @@ class Trainer:
 
             self.net = DistributedDataParallel(self.model, find_unused_parameters=True)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr)
+        # exponential moving average of the weights (decay 0.999: ~1k-step horizon); validation and the saved
+        # checkpoints use it. Single steps move the raw weights enough to flip a 120-frame rollout between
+        # stable and diverging (the first runs' validation curves); the average is much steadier.
+        self.ema = SMLN(cfg.model_config()).to(self.device)
+        self.ema.load_state_dict(self.model.state_dict())
+        self.ema.requires_grad_(False)
         self.sampler = EpisodeSampler(cfg, cfg.seed * 1000 + self.rank)
         self.noise = torch.Generator().manual_seed(cfg.seed * 1000 + self.rank + 1)
         self.cache = SceneCache(self.model, edge_length=cfg.edge_length)
@@ -189,6 +196,7 @@ class Trainer:
         for group in self.opt.param_groups:
             group["lr"] = max(self.cfg.min_lr, self.cfg.lr * 0.5 ** (self.step / self.cfg.lr_halving_steps))
         self.opt.step()
+        self.update_ema()
         self.step += 1
         terms["grad_norm"] = float(grad_norm)
         terms["repulsion_mean"] = float(a.detach().norm(dim=-1).mean())
@@ -227,6 +235,15 @@ class Trainer:
             logs.append(terms)
         return logs
 
+    @torch.no_grad()
+    def update_ema(self) -> None:
+        """ema <- decay * ema + (1 - decay) * weights; buffers (normaliser statistics) are copied."""
+        d = self.cfg.ema_decay
+        for e, p in zip(self.ema.parameters(), self.model.parameters(), strict=True):
+            e.mul_(d).add_(p.detach(), alpha=1.0 - d)
+        for e, b in zip(self.ema.buffers(), self.model.buffers(), strict=True):
+            e.copy_(b)
+
     def init_from(self, path: str) -> None:
         """Start from a checkpoint's weights (and its step count, so the lr and rollout-length schedules go on
         from there); the optimiser starts fresh. The checkpoint's architecture must match this run's."""
@@ -236,6 +253,7 @@ class Trainer:
         if model.config.to_dict() != self.model.config.to_dict():
             raise ValueError(f"{path}: architecture differs from this run's model config")
         self.model.load_state_dict(model.state_dict())
+        self.ema.load_state_dict(model.state_dict())
         self.step = int(card.get("training", {}).get("steps", 0))
 
     # -- validation ------------------------------------------------------------------------------------------
@@ -247,18 +265,19 @@ class Trainer:
         scene = self.cache.get(outfit, "female_average", c.validation_motion)
         frames = min(c.validation_frames, scene.num_frames - 2)
         seq = scene.body.slice(0, frames + 1)
-        self.model.eval()
+        model = self.ema
+        model.eval()
         metrics: list[dict[str, float]] = []
         exploded = 0.0
         try:
             with torch.no_grad():
-                for fr in rollout(self.model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True):
+                for fr in rollout(model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True):
                     metrics.append(fr.metrics)
                     if fr.fallback:
                         exploded = 1.0
                         break
         finally:
-            self.model.train()
+            self.model.train()  # rollout() put the evaluated model in eval mode; the trained one stays in train
         keys = ("strain_mean", "h_coll", "l_coll")
         out = {f"val_{k}": float(np.mean([m.get(k, np.nan) for m in metrics])) if metrics else math.nan for k in keys}
         out["val_frames"] = float(len(metrics))
@@ -275,6 +294,7 @@ class Trainer:
         """Everything needed to continue bit-for-bit (loadable with ``torch.load(weights_only=True)``)."""
         state = {
             "model": self.model.state_dict(),
+            "ema": self.ema.state_dict(),
             "optimizer": self.opt.state_dict(),
             "step": self.step,
             "wall": self.wall,
@@ -290,6 +310,7 @@ class Trainer:
     def load_state(self) -> None:
         state = torch.load(self.state_path(), map_location="cpu", weights_only=True)
         self.model.load_state_dict(state["model"])
+        self.ema.load_state_dict(state["ema"] if "ema" in state else state["model"])
         self.opt.load_state_dict(state["optimizer"])
         self.step = int(state["step"])
         self.wall = float(state["wall"])
@@ -313,7 +334,8 @@ class Trainer:
         from smln.checkpoint import save_checkpoint
 
         path = self.out / name
-        save_checkpoint(path, self.model, card=self.card(extra))
+        save_checkpoint(path, self.ema, card=self.card({"weights": f"exponential moving average of the training "
+                                                             f"weights, decay {self.cfg.ema_decay}", **(extra or {})}))
         return path
 
     # -- logs ----------------------------------------------------------------------------------------------------

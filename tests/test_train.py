@@ -39,7 +39,10 @@ def test_training_steps_reduce_nothing_to_nan_and_write_logs(tmp_path):
 
     model, card = load_checkpoint(tmp_path / "run" / "last")
     assert card["training"]["steps"] == trainer.step
-    assert torch.equal(torch.cat([p.flatten() for p in model.parameters()]), _params(trainer))
+    # checkpoints hold the moving average of the weights
+    saved = torch.cat([p.flatten() for p in model.parameters()])
+    assert torch.equal(saved, torch.cat([p.detach().flatten() for p in trainer.ema.parameters()]))
+    assert not torch.equal(saved, _params(trainer))
 
 
 @pytest.mark.slow
@@ -51,6 +54,8 @@ def test_resume_continues_bit_for_bit(tmp_path):
     resumed = train(["--out", str(tmp_path / "b"), "--max-steps", "10", "--resume"])
     assert resumed.step == straight.step
     assert torch.equal(_params(resumed), _params(straight))
+    assert torch.equal(torch.cat([p.flatten() for p in resumed.ema.parameters()]),
+                       torch.cat([p.flatten() for p in straight.ema.parameters()]))
 
 
 @pytest.mark.slow
@@ -99,8 +104,27 @@ def test_init_from_checkpoint_keeps_weights_and_step(tmp_path):
     second = train(["--out", str(tmp_path / "b"), "--max-steps", str(first.step), "--init-from",
                     str(tmp_path / "a" / "last"), *common])
     assert second.step == first.step
-    assert torch.equal(_params(second), _params(first))
+    ema_first = torch.cat([p.detach().flatten() for p in first.ema.parameters()])
+    assert torch.equal(_params(second), ema_first)  # the checkpoint holds the moving average
     third = train(["--out", str(tmp_path / "c"), "--max-steps", str(first.step + 2), "--init-from",
                    str(tmp_path / "a" / "last"), *common])
     assert third.step >= first.step + 2
-    assert not torch.equal(_params(third), _params(first))
+    assert not torch.equal(_params(third), ema_first)
+
+
+def test_ema_update_is_the_moving_average():
+    from smln.train import TrainConfig
+
+    cfg = TrainConfig(ema_decay=0.9, model={"latent_size": 8, "schedule": [[0, 1], [1, 1], [0, 1]]})
+    trainer = Trainer.__new__(Trainer)  # only the weights, no scenes
+    from smln.model import SMLN
+
+    trainer.cfg = cfg
+    trainer.model, trainer.ema = SMLN(cfg.model_config()), SMLN(cfg.model_config())
+    before = [p.detach().clone() for p in trainer.ema.parameters()]
+    with torch.no_grad():
+        for p in trainer.model.parameters():
+            p.add_(1.0)
+    trainer.update_ema()
+    for e, b, p in zip(trainer.ema.parameters(), before, trainer.model.parameters(), strict=True):
+        torch.testing.assert_close(e, 0.9 * b + 0.1 * p)
