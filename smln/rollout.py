@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from smln.body import lbs
 from smln.cloth import Cloth
+from smln.geometry import build_tree
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
 from smln.model.smln import SMLN
@@ -123,9 +125,17 @@ def rollout(
     ).to(dev)
     body_d = body_v[:n].to(dev)
     zeros = np.zeros((cloth.num_vertices, 3), np.float32)
+    trees: dict[int, cKDTree] = {}
+
+    def body_tree(t: int) -> cKDTree:
+        """One KD-tree per body frame: the metrics of frame t and the graph of the step from t share it."""
+        if t not in trees:
+            trees.clear()
+            trees[t] = build_tree(body_v[t])
+        return trees[t]
 
     def make_frame(t: int, x: torch.Tensor, p: np.ndarray, a: np.ndarray, fb: bool, extra: dict) -> RolloutFrame:
-        fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np)
+        fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np, body_tree=body_tree(t))
         metrics = dict(fm.values)
         metrics.update(extra)
         metrics["repulsion_mean"] = float(np.linalg.norm(a, axis=1).mean())
@@ -158,7 +168,9 @@ def rollout(
     with torch.no_grad():
         for t in range(first, n):
             t0 = time.perf_counter()
-            p, a, ex = model.step(topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t])
+            p, a, ex = model.step(
+                topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1)
+            )
             x_next = ex["x_next"]
             ms = 1e3 * (time.perf_counter() - t0)
             reason = _divergence(x_next, skinned[t], max_distance)

@@ -103,3 +103,31 @@ def test_settle_steps_reset_the_velocity_to_skinning(scene, settle_steps):
     # the sway motion changes velocity, so settling makes a visible difference by frame 3
     if settle_steps:
         assert np.abs((s[2] - s[1]) - (s[1] - s[0]))[free].max() > 1e-4
+
+
+def test_shared_body_tree_changes_nothing(scene, monkeypatch):
+    """The body KD-tree built once per frame (metrics of frame t, graph of the step from t) gives the same rollout
+    as building it in every step, and it is the tree of the right frame."""
+    cloth, seq, bf = scene
+    step = SMLN.step
+    seen = []
+
+    def spy(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next=None, body_tree=None):
+        seen.append((body_tree, body_cur.numpy().copy(), len(topology.build(x_prev, x_cur, body_cur, body_next,
+                                                                            pinned_next).body_receivers)))
+        return step(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree)
+
+    monkeypatch.setattr(SMLN, "step", spy)
+    shared = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
+    assert len(seen) == 4 and all(n > 0 for _, _, n in seen)  # body edges exist, so the tree matters
+    for tree, body_cur, _ in seen:
+        assert tree is not None
+        np.testing.assert_array_equal(tree.data, body_cur.astype(np.float64))
+    monkeypatch.setattr(SMLN, "step", lambda self, *a, body_tree=None, **kw: step(self, *a, **kw))
+    own = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
+    for f, g in zip(shared, own, strict=True):
+        np.testing.assert_array_equal(f.garment_positions, g.garment_positions)
+        drop = ("ms_model",)
+        assert {k: v for k, v in f.metrics.items() if k not in drop} == {
+            k: v for k, v in g.metrics.items() if k not in drop
+        }

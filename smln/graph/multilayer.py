@@ -54,18 +54,21 @@ VIRTUAL_EDGE_DIM = 9
 BODY_EDGE_DIM = 9
 
 
-def _nearest(query: np.ndarray, ref: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def _nearest(
+    query: np.ndarray, ref: np.ndarray | None, radius: float, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Nearest ``ref`` vertex of every ``query`` point within ``radius`` (scipy cKDTree).
 
     A radius-limited query (``smln.geometry.nearest_vertices`` has no radius cut, which the edge sets need).
+    ``tree``: a prebuilt tree over ``ref`` (:func:`smln.geometry.build_tree`, the same tree as built here).
 
     Returns:
         query_idx (M,), ref_idx (M,) int64 for the M queries that found a neighbour.
     """
-    if len(ref) == 0 or len(query) == 0:
+    if (tree.n if tree is not None else len(ref)) == 0 or len(query) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    # unbalanced, non-compact trees build ~1.5-2x faster and query as fast (a new tree every step)
-    tree = cKDTree(np.ascontiguousarray(ref, dtype=np.float64), balanced_tree=False, compact_nodes=False)
+    if tree is None:  # unbalanced, non-compact trees build ~1.5-2x faster and query as fast (a new tree every step)
+        tree = cKDTree(np.ascontiguousarray(ref, dtype=np.float64), balanced_tree=False, compact_nodes=False)
     dist, idx = tree.query(query, k=1, distance_upper_bound=radius)
     ok = np.isfinite(dist)
     return np.flatnonzero(ok).astype(np.int64), idx[ok].astype(np.int64)
@@ -234,6 +237,7 @@ class GraphTopology:
         body_cur: torch.Tensor,
         body_next: torch.Tensor,
         pinned_next: torch.Tensor | None = None,
+        body_tree: cKDTree | None = None,
     ) -> GraphInputs:
         """Features and proximity edges of one step.
 
@@ -244,6 +248,8 @@ class GraphTopology:
             body_next: (Vb, 3) body vertices at t+1, m.
             pinned_next: (V, 3) positions at t+1 whose pinned rows are used (the skinned targets); None =
                 pinned vertices keep their velocity.
+            body_tree: a prebuilt :func:`smln.geometry.build_tree` over ``body_cur`` (skips building it; e.g. the
+                tree the metrics of the previous frame used, see :func:`smln.rollout.rollout`).
 
         Returns:
             :class:`GraphInputs`. Only features and the virtual/body edges are computed here.
@@ -260,8 +266,8 @@ class GraphTopology:
 
         xn = x_cur.detach().cpu().numpy()
         # body world edges (Eq. 7-8): garment vertex <- nearest body vertex at t
-        b_np = body_cur.detach().cpu().numpy()
-        qb, rb = _nearest(xn, b_np, self.body_radius)
+        b_np = None if body_tree is not None else body_cur.detach().cpu().numpy()
+        qb, rb = _nearest(xn, b_np, self.body_radius, tree=body_tree)
         qb_t = torch.as_tensor(qb, device=dev)
         rb_t = torch.as_tensor(rb, device=dev)
         body_cur = body_cur.to(dev, torch.float32)

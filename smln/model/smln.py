@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
 from smln.cloth import DT, GRAVITY
@@ -209,9 +210,10 @@ class SMLN(nn.Module):
         body_cur: torch.Tensor,
         body_next: torch.Tensor,
         pinned_next: torch.Tensor | None = None,
+        body_tree: cKDTree | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
-        graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next)
+        graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree)
         p, a, extras = self(graph, topology)
         extras["graph"] = graph
         return p, a, extras
