@@ -247,8 +247,11 @@ class SceneView:
             view.show(frames.get(v), display, status.get(v, ""))
 
     def centre(self, frames: dict[str, Any]) -> np.ndarray | None:
-        """(3,) centre of the shown bodies (offsets included), m; None before the first frame."""
-        offsets = self.offsets(list(self.views))
-        pts = [f.body_vertices.mean(axis=0) + np.array([offsets[v], 0.0, 0.0])
-               for v, f in frames.items() if f is not None and v in offsets]
+        """(3,) centre of the row of bodies, m; None before the first frame.
+
+        Every variant moves the same body and the row is laid out centred on x = 0, so the centre is the body's
+        centroid whichever variants already have the frame. (Averaging only the variants that have it moved the
+        camera sideways by up to half the row whenever one variant was slower than another.)
+        """
+        pts = [f.body_vertices.mean(axis=0) for v, f in frames.items() if f is not None and v in self.views]
         return np.mean(pts, axis=0) if pts else None

@@ -151,3 +151,22 @@ def test_launcher_reports_bad_extra(tmp_path, capsys):
     assert len(store) == 0 and setting is None
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("launch_viewer: skipping --extra-rollout") and "broken.npz" in err[0]
+
+
+def test_camera_centre_does_not_jump_when_a_variant_lags():
+    """The follow camera's centre is the body's, not the mean of whichever variants already have the frame."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from app.scene import SceneView
+
+    view = SceneView.__new__(SceneView)  # only the layout logic, no server
+    view.views = {"full": None, "baseline": None, "skinning": None}
+    body = np.random.default_rng(0).normal(size=(50, 3)) + np.array([0.3, -0.2, 1.0])
+    frame = SimpleNamespace(body_vertices=body)
+    all_there = view.centre({"full": frame, "baseline": frame, "skinning": frame})
+    one_there = view.centre({"full": None, "baseline": None, "skinning": frame})
+    np.testing.assert_allclose(all_there, body.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(one_there, all_there, atol=1e-12)
+    assert view.centre({"full": None}) is None
