@@ -43,6 +43,15 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
 
     src_card = run_dir / f"{which}.json"
     card = json.loads(src_card.read_text())
+    init = card.get("training", {}).get("init_from")
+    if init and "initialised_from" not in card and (Path(init) / "card.json").is_file():
+        # runs started before the trainer recorded its parent: take it from the parent card (read before the
+        # parent is overwritten below when it is the published checkpoint itself)
+        parent = json.loads((Path(init) / "card.json").read_text())
+        tr0 = parent.get("training", {})
+        card["initialised_from"] = {"path": init, "steps": tr0.get("steps"), "wall_time_s": tr0.get("wall_time_s"),
+                                    "hardware": tr0.get("hardware"),
+                                    "initialised_from": parent.get("initialised_from")}
     out = dest / variant
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
@@ -68,6 +77,13 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
         f"- architecture: {json.dumps(card.get('config'))}",
         f"- loss weights: {json.dumps(card.get('loss_weights'))}",
     ]
+    lineage, parent = [], card.get("initialised_from")
+    while parent:  # fine-tuned runs: the runs they continued, newest first
+        lineage.append(f"{parent.get('steps')} steps / {parent.get('wall_time_s')} s ({parent.get('hardware')})")
+        parent = parent.get("initialised_from")
+    if lineage:
+        md.append("- continued from earlier training: " + "; then from ".join(lineage)
+                  + " (steps count from the start of the first run; wall time above is this run's only)")
     if "validation" in card:
         md.append(f"- validation rollout at selection: {json.dumps(card['validation'])}")
     if ev:
@@ -97,10 +113,11 @@ def main() -> None:
     p.add_argument("--dest", default="checkpoints")
     p.add_argument("--eval-json")
     p.add_argument("--variants", nargs="+", default=list(DESCRIPTIONS))
+    p.add_argument("--prefix", default="", help="run directories are RUNS/<prefix><variant> (e.g. ft_)")
     a = p.parse_args()
     results = json.loads(Path(a.eval_json).read_text()) if a.eval_json else None
     for v in a.variants:
-        print(publish(Path(a.runs) / v, v, a.which, Path(a.dest), results))
+        print(publish(Path(a.runs) / f"{a.prefix}{v}", v, a.which, Path(a.dest), results))
 
 
 if __name__ == "__main__":

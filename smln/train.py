@@ -174,6 +174,7 @@ class Trainer:
         self.wall = 0.0
         self.best_score = math.inf
         self.history: list[dict[str, float]] = []
+        self.parent: dict[str, Any] | None = None  # the checkpoint this run was initialised from (--init-from)
 
     # -- one autoregressive step -------------------------------------------------------------------------
     def train_step(self, scene: Scene, t: int, x_prev: torch.Tensor, x_cur: torch.Tensor) -> tuple[torch.Tensor, dict]:
@@ -254,7 +255,10 @@ class Trainer:
             raise ValueError(f"{path}: architecture differs from this run's model config")
         self.model.load_state_dict(model.state_dict())
         self.ema.load_state_dict(model.state_dict())
-        self.step = int(card.get("training", {}).get("steps", 0))
+        tr = card.get("training", {})
+        self.step = int(tr.get("steps", 0))
+        self.parent = {"path": str(path), "steps": self.step, "wall_time_s": tr.get("wall_time_s"),
+                       "hardware": tr.get("hardware"), "initialised_from": card.get("initialised_from")}
 
     # -- validation ------------------------------------------------------------------------------------------
     def validate(self) -> dict[str, float]:
@@ -302,6 +306,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "noise_rng": self.noise.get_state(),
             "sampler_rng": json.dumps(self.sampler.rng.bit_generator.state),
+            "parent": json.dumps(self.parent),
         }
         tmp = self.state_path().with_suffix(".tmp")
         torch.save(state, tmp)
@@ -318,6 +323,7 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self.noise.set_state(state["noise_rng"])
         self.sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
+        self.parent = json.loads(state["parent"]) if "parent" in state else None
 
     def card(self, extra: dict[str, Any] | None = None) -> dict[str, Any]:
         return {
@@ -327,6 +333,7 @@ class Trainer:
                          "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
                          "torch": torch.__version__},
             "loss_weights": asdict(self.weights),
+            **({"initialised_from": self.parent} if self.parent else {}),
             **(extra or {}),
         }
 

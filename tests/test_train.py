@@ -109,6 +109,8 @@ def test_init_from_checkpoint_keeps_weights_and_step(tmp_path):
     third = train(["--out", str(tmp_path / "c"), "--max-steps", str(first.step + 2), "--init-from",
                    str(tmp_path / "a" / "last"), *common])
     assert third.step >= first.step + 2
+    _, card3 = load_checkpoint(tmp_path / "c" / "last")
+    assert card3["initialised_from"]["steps"] == first.step  # the lineage is recorded
     assert not torch.equal(_params(third), ema_first)
 
 
