@@ -25,8 +25,8 @@ from scipy.spatial import cKDTree
 
 MAX_BODY_DISTANCE = 0.5
 """Stated bound: no garment vertex farther than this from the nearest body vertex, m."""
-MAX_SKIN_DISTANCE = 1.0
-"""The rollout's own divergence bound (``smln.rollout.rollout(max_distance=...)``), m."""
+MAX_SKIN_DISTANCE = 0.4
+"""The rollout's own divergence bound (the default of ``smln.rollout.rollout(max_distance=...)``), m."""
 
 
 @dataclass
