@@ -2,13 +2,32 @@
 
 Setup: a body-like mesh of 12,804 vertices (an ellipsoid torso, icosphere subdivision 5, plus a head,
 subdivision 4) and two open elliptical tubes of 50 x 50 vertices each that follow the torso 1 cm and 2 cm
-outside it (5,000 cloth vertices, 9,800 faces). Reports the median of 20 runs (after 3 warm-ups) with
-``torch.set_num_threads(2)``, as JSON:
+outside it (5,000 cloth vertices, 9,800 faces). Reports medians of 20 runs (after 3 warm-ups) with
+``torch.set_num_threads(2)``, as JSON. The :func:`frame_metrics` variants run interleaved (round robin), so a
+busy machine slows them alike and their ratios stay comparable:
 
-- ``metrics_ms``: :func:`frame_metrics` computing everything (body normals, body KD-tree) itself;
-- ``metrics_prebuilt_body_ms``: with the body normals and tree given (shared with the loss/graph);
+- ``metrics_ms``: self-contained, as the evaluation scripts call it (``body_faces`` only): the body KD-tree
+  (build + query of the 5,000 cloth vertices) and the normals of the body vertices it needs are computed
+  inside; one thread.
+- ``metrics_shared_tree_ms``: the body tree given, normals from the faces: what :func:`smln.rollout.rollout`
+  pays per frame (it builds one tree per body frame and shares it with the graph build of the next step).
+- ``metrics_prebuilt_body_ms``: body normals and tree both given.
+- ``*_2workers_ms``: the same with ``workers=2`` (the KD-tree queries split over two threads; the tree build
+  and the numpy work stay on one).
 - ``loss_fwd_bwd_ms``: :func:`total_loss` forward + backward with a prebuilt :class:`BodyStep`
   (``_incl_body_step``: building it too; ``_cached_pairs``: with the repulsion pairs given).
+
+Target (issue 4): ``metrics_ms`` <= 5 ms median on 2 idle CPU cores; it measured 10.5-11.3 ms before the
+numpy/scipy rewrite of :func:`frame_metrics` (torch vertex normals and index_add, row gathers). What is left is
+mostly scipy's cKDTree: building the 12.8k-vertex body tree, querying the 5,000 cloth vertices in it and the
+2,500-point layer query take about 80 % of a single-threaded call. Interleaved A/B runs against the previous
+version on a loaded 2-core machine, one thread, as fractions of the previous self-contained time: self-contained
+0.75, body tree shared 0.63, body tree and normals given 0.56 (the previous version with both given: 0.71).
+With ``workers=2`` the queries (~60 % of the CPU time) split over the two cores: from the per-thread CPU times,
+on 2 idle cores about 0.57-0.61 self-contained, 0.44-0.47 with the tree shared, 0.39-0.41 with both given
+(estimates: on the loaded machine two threads ran no faster than one). So 5 ms is within reach only with the
+body tree shared and ``workers=2`` (the rollout shares the tree but calls with the default ``workers=1``); check
+it on an idle machine with this script.
 
 Run: ``python bench/losses_metrics.py``
 """
@@ -82,6 +101,18 @@ def make_cloth() -> Cloth:
     )
 
 
+def interleaved_median_ms(fns: dict[str, Callable[[], object]], runs: int = 20, warmup: int = 3) -> dict[str, float]:
+    """Median ms of each function, running them round robin (each round calls every function once)."""
+    ts: dict[str, list[float]] = {k: [] for k in fns}
+    for r in range(warmup + runs):
+        for k, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            if r >= warmup:
+                ts[k].append(time.perf_counter() - t)
+    return {k: 1e3 * statistics.median(v) for k, v in ts.items()}
+
+
 def median_ms(fn: Callable[[], object], runs: int = 20, warmup: int = 3) -> float:
     for _ in range(warmup):
         fn()
@@ -118,6 +149,19 @@ def main() -> None:
         loss.backward()
 
     m = frame_metrics(x_np, body_next, rest, body_faces=body_faces)
+    metrics = interleaved_median_ms(
+        {
+            f"metrics{name}{'_2workers' if w == 2 else ''}_ms": (
+                lambda kw=kw, w=w: frame_metrics(x_np, body_next, rest, workers=w, **kw)
+            )
+            for name, kw in (
+                ("", {"body_faces": body_faces}),
+                ("_shared_tree", {"body_faces": body_faces, "body_tree": tree}),
+                ("_prebuilt_body", {"body_normals": bn, "body_tree": tree}),
+            )
+            for w in (1, 2)
+        }
+    )
     result = {
         "body_vertices": int(body.shape[0]),
         "cloth_vertices": int(cloth.num_vertices),
@@ -127,13 +171,7 @@ def main() -> None:
         "python": platform.python_version(),
         "threads": torch.get_num_threads(),
         "runs": 20,
-        "metrics_ms": median_ms(lambda: frame_metrics(x_np, body_next, rest, body_faces=body_faces)),
-        "metrics_prebuilt_body_ms": median_ms(
-            lambda: frame_metrics(x_np, body_next, rest, body_normals=bn, body_tree=tree)
-        ),
-        "metrics_prebuilt_body_2workers_ms": median_ms(
-            lambda: frame_metrics(x_np, body_next, rest, body_normals=bn, body_tree=tree, workers=2)
-        ),
+        **metrics,
         "body_step_build_ms": median_ms(lambda: BodyStep.from_vertices(body, body_next, body_faces)),
         "loss_fwd_bwd_ms": median_ms(loss_fb),
         "loss_fwd_bwd_cached_pairs_ms": median_ms(lambda: loss_fb(pairs=pairs)),
