@@ -183,9 +183,9 @@ def markdown(report: dict) -> str:
         f"- Scenes: body `{report['shape']}`, outfits at the training edge length {report['edge_length']} m, "
         f"{report['frames']} frames per clip; statistics over frames {FIRST}..{report['frames'] - 1}.",
         "- Checkpoints: " + ", ".join(f"`{k}` from `{v}`" for k, v in report["checkpoints"].items()) + ".",
-        f"- Physics reference: Newton `SolverVBD`, {report['physics']['substeps']} substeps x "
-        f"{report['physics']['iterations']} iterations per frame, body = moving mesh collider, self-contact on "
-        "(see `bench/physics_reference.py`).",
+        "- Physics reference: Newton `SolverVBD` (substeps x iterations per frame in each scene's heading; "
+        f"simulated now with {report['physics']['substeps']} x {report['physics']['iterations']} when no cached "
+        "rollout), body = moving mesh collider, self-contact on (see `bench/physics_reference.py`).",
         "",
         "Columns: ms/frame (median, simulated frames only), speed-up = physics ms / method ms, L-Coll / H-Coll "
         "(% of vertices, mean over frames), mean / max edge strain |l/l0 - 1| (%), distance = mean vertex distance "
@@ -205,7 +205,9 @@ def markdown(report: dict) -> str:
     for name, r in report["overall"].items():
         lines.append(row(name, r))
     for key, scene in report["scenes"].items():
-        lines += ["", f"## {key} ({scene['vertices']} cloth vertices, {scene['layers']} layers)", "", head, sep]
+        ph = scene.get("physics") or report["physics"]
+        lines += ["", f"## {key} ({scene['vertices']} cloth vertices, {scene['layers']} layers; physics "
+                  f"{ph.get('substeps')} substeps x {ph.get('iterations')} iterations)", "", head, sep]
         for name, r in scene["methods"].items():
             lines.append(row(name, r))
         lines += ["", f"![{key}](benchmarks/{scene['plot']})"]
@@ -264,7 +266,8 @@ def main(argv: list[str] | None = None) -> dict:
             n = scene.num_frames
             key = f"{outfit} / {clip}"
             print(f"{key}: {scene.cloth.num_vertices} vertices, {n} frames", flush=True)
-            x_phys, rows_phys, _, src = physics_rollout(scene, n, Path(a.physics_dir), a.substeps, a.iterations)
+            x_phys, rows_phys, phys_meta, src = physics_rollout(scene, n, Path(a.physics_dir), a.substeps,
+                                                                a.iterations)
             print(f"  {PHYSICS}: {src}", flush=True)
             results = {}
             methods: list[tuple[str, str, object]] = [(k, "model", m) for k, m in models.items()]
@@ -287,7 +290,8 @@ def main(argv: list[str] | None = None) -> dict:
             plot = f"{outfit}__{clip}.png"
             plot_scene(plot_dir / plot, f"{key} ({scene.cloth.num_vertices} cloth vertices)", results)
             report["scenes"][key] = {"outfit": outfit, "clip": clip, "vertices": scene.cloth.num_vertices,
-                                     "layers": scene.cloth.num_layers, "plot": plot, "methods": results}
+                                     "layers": scene.cloth.num_layers, "plot": plot, "methods": results,
+                                     "physics": {k: phys_meta.get(k) for k in ("substeps", "iterations")}}
     names = list(next(iter(report["scenes"].values()))["methods"])
     overall = {}
     for name in names:
