@@ -177,8 +177,9 @@ class VariantView:
             _set(self.vectors, "visible", bool(len(pts)))
         else:
             _set(self.vectors, "visible", False)
-        lo, hi = body.min(axis=0), body.max(axis=0)
-        self.label.position = (float(0.5 * (lo[0] + hi[0])), float(0.5 * (lo[1] + hi[1])), float(hi[2] + 0.25))
+        # above the body's centroid (the bounding-box centre moves toward an outstretched arm)
+        centroid = body.mean(axis=0)
+        self.label.position = (float(centroid[0]), float(centroid[1]), float(body[:, 2].max() + 0.25))
         self.shown_index = int(frame.index)
 
     def remove(self) -> None:
