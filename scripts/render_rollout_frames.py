@@ -17,7 +17,7 @@ import torch
 
 from smln.data_sampling import make_scene
 from smln.evaluate import method_frames
-from smln.garments.render import BODY_COLOUR, LAYER_COLOURS, draw_meshes
+from smln.garments.render import BODY_COLOUR, LAYER_COLOURS, VIEWS, draw_meshes
 
 
 def main() -> None:
@@ -64,7 +64,7 @@ def main() -> None:
             pen = fr.layer_penetration
             if pen.any():
                 pts = fr.garment_positions[pen]
-                sx = np.array([1.0, 0, 0]) if a.view == "front" else np.array([0, -1.0, 0])
+                sx = np.asarray(VIEWS[a.view][0], dtype=np.float64)  # the same screen axis as draw_meshes
                 ax.scatter(pts @ sx, pts[:, 2], s=2, c="red")
             label = f"{name}  t={t}" + ("  (fallback)" if fr.fallback else "")
             ax.set_title(f"{label}\nL-Coll {fr.metrics['l_coll']:.1f}%  H-Coll {fr.metrics['h_coll']:.1f}%", fontsize=8)
