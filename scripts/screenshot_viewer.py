@@ -54,9 +54,8 @@ def main() -> None:
             page.goto(app.url)
             page.get_by_text("Connected").wait_for(timeout=60_000)
             page.get_by_role("button", name="Pause").click()
-            frame_box = page.get_by_role("spinbutton").first  # the Frame slider's number field
-            frame_box.fill(str(a.frame))
-            frame_box.press("Enter")
+            page.get_by_role("button", name="Play").wait_for(timeout=10_000)
+            app.controls.frame.value = a.frame  # the Frame slider, set from the server side
             time.sleep(4.0)
             Path(a.out).parent.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=a.out)
