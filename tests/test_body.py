@@ -52,6 +52,13 @@ def test_shipped_export_matches_anny():
 
     fresh = build_export("female_average")
     shipped = np.load(export_path("female_average"))
-    for key in ("rest_vertices", "rest_bone_poses", "skin_weights"):
+    for key in ("rest_vertices", "rest_bone_poses"):
         np.testing.assert_allclose(fresh[key], shipped[key], atol=1e-5)
     np.testing.assert_array_equal(fresh["faces"], shipped["faces"])
+    # skinning weights as per-vertex bone -> weight maps: the order of the K slots is not part of the contract
+    # (equal weights can come out of anny's sort in either order on another CPU)
+    from smln.garments.skin_transfer import dense_weights
+
+    bones = int(max(fresh["skin_indices"].max(), shipped["skin_indices"].max())) + 1
+    np.testing.assert_allclose(dense_weights(fresh["skin_indices"], fresh["skin_weights"], bones),
+                               dense_weights(shipped["skin_indices"], shipped["skin_weights"], bones), atol=1e-5)
