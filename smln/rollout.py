@@ -98,7 +98,7 @@ def rollout(
             garment leaves them strained: ~7 % mean edge strain, ~100 % at the armpits) rather than move them.
             That relaxation is not momentum: after each of these steps the velocity is reset to the skinning's
             (x_prev := x_next - (skinned_t - skinned_{t-1})). Without it the relaxation jolt carries into the
-            next frames and overshoots (the L-BFGS reference on a walk: mean strain 6-10 % over frames 3-11
+            next frames and overshoots (the L-BFGS reference on a walk: mean strain 5.0-10.4 % over frames 3-11
             instead of 4.2-5.5 %). Training episodes start the same way (:mod:`smln.train`). 0 = off.
 
     Yields:
