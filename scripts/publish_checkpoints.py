@@ -48,14 +48,13 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
         # runs started before the trainer recorded its parent: take it from the parent card (read before the
         # parent is overwritten below when it is the published checkpoint itself)
         parent = json.loads((Path(init) / "card.json").read_text())
-        if parent.get("sha256") == card.get("sha256"):  # published before: the parent card is this run's own
-            parent = {"training": (parent.get("initialised_from") or {}),
-                      "initialised_from": (parent.get("initialised_from") or {}).get("initialised_from")}
-            parent["training"] = {k: parent["training"].get(k) for k in ("steps", "wall_time_s", "hardware")}
-        tr0 = parent.get("training", {})
-        card["initialised_from"] = {"path": init, "steps": tr0.get("steps"), "wall_time_s": tr0.get("wall_time_s"),
-                                    "hardware": tr0.get("hardware"),
-                                    "initialised_from": parent.get("initialised_from")}
+        if parent.get("sha256") == card.get("sha256"):  # republishing: that card is this run's, lineage included
+            card["initialised_from"] = parent.get("initialised_from")
+        else:
+            tr0 = parent.get("training", {})
+            card["initialised_from"] = {"path": init, "steps": tr0.get("steps"),
+                                        "wall_time_s": tr0.get("wall_time_s"), "hardware": tr0.get("hardware"),
+                                        "initialised_from": parent.get("initialised_from")}
     out = dest / variant
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
