@@ -16,7 +16,7 @@ import torch
 from smln.body.skinning import lbs
 from smln.cloth import Cloth
 from smln.losses import BodyStep, ClothRest, LossWeights, total_loss
-from smln.losses.repulsion import layer_pairs
+from smln.losses.repulsion import PAIR_RADIUS, layer_pairs
 from smln.metrics import frame_metrics
 from smln.rollout import RolloutFrame
 
@@ -29,6 +29,7 @@ def solve_step(
     rest: ClothRest,
     weights: LossWeights,
     iterations: int = 60,
+    pair_radius: float = PAIR_RADIUS,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """One implicit step: L-BFGS on the free vertices from the inertial guess x_t + v_t.
 
@@ -37,6 +38,7 @@ def solve_step(
         pinned_next: (V, 3) skinned positions at t+1 (used on pinned rows).
         body: the body at t and t+1; rest: the cloth's rest state; weights: loss weights.
         iterations: L-BFGS iterations (strong Wolfe line search).
+        pair_radius: repulsion pairing radius at step t, m (:func:`~smln.losses.repulsion.layer_pairs`).
 
     Returns:
         x_next (V, 3) and the loss terms at the solution.
@@ -44,7 +46,7 @@ def solve_step(
     pinned = rest.pinned
     guess = torch.where(pinned[:, None], pinned_next, 2 * x_cur - x_prev)
     free = guess[~pinned].clone().requires_grad_(True)
-    pairs = layer_pairs(x_cur, rest) if rest.num_layers > 1 and weights.repulsion else None
+    pairs = layer_pairs(x_cur, rest, radius=pair_radius) if rest.num_layers > 1 and weights.repulsion else None
     opt = torch.optim.LBFGS([free], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                             tolerance_grad=1e-9, tolerance_change=1e-12, history_size=20)
 
@@ -73,9 +75,13 @@ def solver_rollout(
     num_frames: int | None = None,
     weights: LossWeights | None = None,
     iterations: int = 60,
+    pair_radius: float = PAIR_RADIUS,
 ) -> Iterator[RolloutFrame]:
-    """Frames of the reference solver over a clip, in the same :class:`RolloutFrame` form as the network's."""
-    weights = weights or LossWeights()
+    """Frames of the reference solver over a clip, in the same :class:`RolloutFrame` form as the network's.
+
+    ``weights`` default to :meth:`LossWeights.training` (what the network is trained with).
+    """
+    weights = weights or LossWeights.training()
     n = body_sequence.num_frames if num_frames is None else min(num_frames, body_sequence.num_frames)
     rest = ClothRest.from_cloth(cloth)
     skinned = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights, body_sequence.transforms[:n])
@@ -86,7 +92,7 @@ def solver_rollout(
         t0 = time.perf_counter()
         if t >= 2:
             body = BodyStep.from_vertices(body_sequence.vertices[t - 1], body_sequence.vertices[t], faces)
-            x_next, _ = solve_step(x_prev, x_cur, skinned[t], body, rest, weights, iterations)
+            x_next, _ = solve_step(x_prev, x_cur, skinned[t], body, rest, weights, iterations, pair_radius)
             x_prev, x_cur = x_cur, x_next
         x = skinned[t] if t < 2 else x_cur
         fm = frame_metrics(x, body_sequence.vertices[t], rest, body_faces=faces.numpy())

@@ -36,10 +36,10 @@ from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
 VARIANTS = {
-    # name: (repulsion layer on, repulsion loss weight)  -- the paper's Table 3 rows
-    "full": (True, 1e3),
-    "no_repulsion_layer": (False, 1e3),
-    "baseline": (False, 0.0),
+    # name: (repulsion layer on, repulsion loss on)  -- the paper's Table 3 rows
+    "full": (True, True),
+    "no_repulsion_layer": (False, True),
+    "baseline": (False, False),
 }
 
 
@@ -73,10 +73,17 @@ class TrainConfig:
     validation_motion: str = "06_01_walk"
     log_every: int = 10
     threads: int = 1
+    repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     model: dict[str, Any] = field(default_factory=dict)
 
     def weights(self) -> LossWeights:
-        return LossWeights(repulsion=VARIANTS[self.variant][1])
+        """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline``."""
+        w = LossWeights.training()
+        if self.repulsion_weight is not None:
+            w.repulsion = self.repulsion_weight
+        if not VARIANTS[self.variant][1]:
+            w.repulsion = 0.0
+        return w
 
     def model_config(self) -> SMLNConfig:
         cfg = dict(self.model)
@@ -459,6 +466,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--validate-every", type=int)
     p.add_argument("--rollout-max", type=int)
     p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
+    p.add_argument("--repulsion-weight", type=float,
+                   help="λr of the repulsion loss (default: LossWeights.training(), 1e4; ignored by baseline)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -470,7 +479,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     for flag, key in (("variant", "variant"), ("minutes", "minutes"), ("max_steps", "max_steps"), ("seed", "seed"),
                       ("lr", "lr"), ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
-                      ("rollout_max", "rollout_max"), ("init_from", "init_from")):
+                      ("rollout_max", "rollout_max"), ("init_from", "init_from"),
+                      ("repulsion_weight", "repulsion_weight")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

@@ -130,3 +130,22 @@ def test_ema_update_is_the_moving_average():
     trainer.update_ema()
     for e, b, p in zip(trainer.ema.parameters(), before, trainer.model.parameters(), strict=True):
         torch.testing.assert_close(e, 0.9 * b + 0.1 * p)
+
+
+def test_variant_loss_weights():
+    """full and no_repulsion_layer train with the repulsion loss (λr of LossWeights.training, or the flag);
+    baseline without it; every other weight is the paper's."""
+    from smln.losses import LossWeights
+    from smln.losses.total import TRAINING_REPULSION
+    from smln.train import TrainConfig, parse_args
+
+    paper = LossWeights()
+    for variant, rep in (("full", TRAINING_REPULSION), ("no_repulsion_layer", TRAINING_REPULSION), ("baseline", 0.0)):
+        w = TrainConfig(variant=variant).weights()
+        assert w.repulsion == rep
+        assert (w.stretch, w.bending, w.gravity, w.friction) == (paper.stretch, paper.bending, paper.gravity,
+                                                                  paper.friction)
+    cfg, _ = parse_args(["--out", "x", "--variant", "full", "--repulsion-weight", "1000"])
+    assert cfg.weights().repulsion == 1e3 == paper.repulsion
+    cfg, _ = parse_args(["--out", "x", "--variant", "baseline", "--repulsion-weight", "1000"])
+    assert cfg.weights().repulsion == 0.0
