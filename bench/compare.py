@@ -10,7 +10,8 @@ docs/BENCHMARKS.md, training edge length 0.035 m, body ``female_average``), one 
   published, else ``runs/<variant>/best``), :func:`smln.rollout.rollout` with fallback;
 - ``skinning``: garments rigidly skinned, no dynamics;
 - ``L-BFGS solver``: :mod:`smln.solver`, the same per-step loss minimised per frame, no network;
-- ``physics (Newton VBD)``: ``bench/physics_reference.py`` (read from ``--physics-dir`` when a long enough rollout
+- ``physics (Newton VBD)``: ``bench/physics_reference.py`` with a ``--preroll`` lead-in from the T-pose (default
+  40 frames; read from ``--physics-dir`` when a long enough rollout
   NPZ is there, else simulated now).
 
 Columns: ms/frame (median over the simulated frames), speed-up over physics (physics ms / method ms), L-Coll %,
@@ -76,13 +77,16 @@ def find_checkpoint(variant: str, root: Path) -> Path | None:
     return None
 
 
-def physics_rollout(scene, frames: int, physics_dir: Path, substeps: int, iterations: int):
+def physics_rollout(scene, frames: int, physics_dir: Path, substeps: int, iterations: int, preroll: int = 0):
     """The physics reference of a scene: a cached NPZ with >= ``frames`` frames, else simulated and saved.
+
+    ``preroll`` > 0: the garments are simulated from their rest shape through a lead-in from the T-pose
+    (``physics_reference.py --preroll``); cached under a separate name.
 
     Returns:
         (positions (T, V, 3) float32, per-frame metric dicts, meta dict, source description).
     """
-    path = physics_dir / f"{scene.outfit}__{scene.motion}.npz"
+    path = physics_dir / (f"{scene.outfit}__{scene.motion}" + (f"__preroll{preroll}" if preroll else "") + ".npz")
     if path.exists():
         r = load_rollout_npz(path)
         if r.num_frames >= frames and r.num_vertices == scene.cloth.num_vertices:
@@ -90,11 +94,12 @@ def physics_rollout(scene, frames: int, physics_dir: Path, substeps: int, iterat
             return r.garment_positions[:frames], rows, r.meta, f"{path} (cached)"
     from physics_reference import physics_frames
 
-    out = list(physics_frames(scene, frames, substeps=substeps, iterations=iterations))
+    out = list(physics_frames(scene, frames, substeps=substeps, iterations=iterations, preroll=preroll))
     import newton
 
     meta = {"outfit": scene.outfit, "clip": scene.motion, "shape": scene.shape, "variant": PHYSICS,
-            "newton_version": newton.__version__, "substeps": substeps, "iterations": iterations}
+            "newton_version": newton.__version__, "substeps": substeps, "iterations": iterations,
+            "preroll": preroll, "ms_preroll": out[0].metrics.get("ms_preroll", 0.0)}
     physics_dir.mkdir(parents=True, exist_ok=True)
     save_rollout_npz(path, out, scene.cloth, scene.body.faces, meta=meta)
     return np.stack([f.garment_positions for f in out]), [f.metrics for f in out], meta, f"{path} (simulated now)"
@@ -186,7 +191,10 @@ def markdown(report: dict) -> str:
         "- Checkpoints: " + ", ".join(f"`{k}` from `{v}`" for k, v in report["checkpoints"].items()) + ".",
         "- Physics reference: Newton `SolverVBD` (substeps x iterations per frame in each scene's heading; "
         f"simulated now with {report['physics']['substeps']} x {report['physics']['iterations']} when no cached "
-        "rollout), body = moving mesh collider, self-contact on (see `bench/physics_reference.py`).",
+        "rollout), body = moving mesh collider, self-contact on (see `bench/physics_reference.py`); "
+        + (f"the garments start at rest in the T-pose and are simulated through a {report['physics']['preroll']}-frame "
+           "lead-in to the clip's frame 1 (`--preroll`), while the learned models start from skinning."
+           if report["physics"].get("preroll") else "it starts from the skinned frame 1 like the learned models."),
         "",
         "Columns: ms/frame (median, simulated frames only), speed-up = physics ms / method ms, L-Coll / H-Coll "
         "(% of vertices, mean over frames), mean / max edge strain |l/l0 - 1| (%), distance = mean vertex distance "
@@ -208,7 +216,8 @@ def markdown(report: dict) -> str:
     for key, scene in report["scenes"].items():
         ph = scene.get("physics") or report["physics"]
         lines += ["", f"## {key} ({scene['vertices']} cloth vertices, {scene['layers']} layers; physics "
-                  f"{ph.get('substeps')} substeps x {ph.get('iterations')} iterations)", "", head, sep]
+                  f"{ph.get('substeps')} substeps x {ph.get('iterations')} iterations"
+                  + (f", {ph['preroll']}-frame lead-in" if ph.get("preroll") else "") + ")", "", head, sep]
         for name, r in scene["methods"].items():
             lines.append(row(name, r))
         lines += ["", f"![{key}](benchmarks/{scene['plot']})"]
@@ -227,6 +236,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--physics-dir", default="runs/physics", help="cached physics rollouts (outfit__clip.npz)")
     p.add_argument("--substeps", type=int, default=20)
     p.add_argument("--iterations", type=int, default=10)
+    p.add_argument("--preroll", type=int, default=40,
+                   help="physics lead-in frames from the T-pose rest garments to frame 1 (0: start from skinning)")
     p.add_argument("--no-solver", action="store_true", help="leave out the L-BFGS solver (slow)")
     p.add_argument("--json", help="write all figures as JSON")
     p.add_argument("--markdown", help="write the report (e.g. docs/BENCHMARKS.md); plots go to benchmarks/ beside it")
@@ -260,7 +271,8 @@ def main(argv: list[str] | None = None) -> dict:
                         "newton": newton_version, "python": platform.python_version(),
                         "date": time.strftime("%Y-%m-%d %H:%M"), "note": a.note},
         "shape": a.shape, "edge_length": a.edge_length, "frames": a.frames, "checkpoints": sources,
-        "physics": {"substeps": a.substeps, "iterations": a.iterations}, "scenes": {}, "notes": list(a.notes),
+        "physics": {"substeps": a.substeps, "iterations": a.iterations, "preroll": a.preroll}, "scenes": {},
+        "notes": list(a.notes),
     }
     for clip in a.clips:
         for outfit in a.outfits:
@@ -269,7 +281,7 @@ def main(argv: list[str] | None = None) -> dict:
             key = f"{outfit} / {clip}"
             print(f"{key}: {scene.cloth.num_vertices} vertices, {n} frames", flush=True)
             x_phys, rows_phys, phys_meta, src = physics_rollout(scene, n, Path(a.physics_dir), a.substeps,
-                                                                a.iterations)
+                                                                a.iterations, a.preroll)
             print(f"  {PHYSICS}: {src}", flush=True)
             results = {}
             methods: list[tuple[str, str, object]] = [(k, "model", m) for k, m in models.items()]
@@ -293,7 +305,7 @@ def main(argv: list[str] | None = None) -> dict:
             plot_scene(plot_dir / plot, f"{key} ({scene.cloth.num_vertices} cloth vertices)", results)
             report["scenes"][key] = {"outfit": outfit, "clip": clip, "vertices": scene.cloth.num_vertices,
                                      "layers": scene.cloth.num_layers, "plot": plot, "methods": results,
-                                     "physics": {k: phys_meta.get(k) for k in ("substeps", "iterations")}}
+                                     "physics": {k: phys_meta.get(k) for k in ("substeps", "iterations", "preroll")}}
     names = list(next(iter(report["scenes"].values()))["methods"])
     overall = {}
     for name in names:

@@ -118,9 +118,11 @@ class NewtonClothSim:
         substeps: solver steps per 30 fps frame.
         iterations: VBD iterations per substep.
         self_contact: turn Newton's particle self-contact (layer-layer and self collisions) on.
+        preroll: lead-in frames from the T-pose to frame 1 (0: start from skinned frame 1 instead).
     """
 
-    def __init__(self, scene, *, substeps: int = 20, iterations: int = 10, self_contact: bool = True) -> None:
+    def __init__(self, scene, *, substeps: int = 20, iterations: int = 10, self_contact: bool = True,
+                 preroll: int = 0) -> None:
         wp, newton = import_newton()
         self.wp, self.newton = wp, newton
         self.scene = scene
@@ -196,13 +198,30 @@ class NewtonClothSim:
         self.control = model.control()
         self.state_0 = model.state()
         self.state_1 = model.state()
-        # start from skinned frame 1, like SMLN's rollouts (frames 0-1 skinned). The initial velocity is the
-        # skinned one of the next frame (2 - 1): the clips' frame 0 -> 1 jump (~26 cm mean body displacement on
-        # 05_01_walk) would throw the cloth.
         n1, n2 = min(1, len(self.skinned) - 1), min(2, len(self.skinned) - 1)
-        self.state_0.particle_q.assign(self.skinned[n1])
-        self.state_0.particle_qd.assign((self.skinned[n2] - self.skinned[n1]) * FPS)
-        self._set_body(body[n1], np.zeros_like(body[n1]))
+        if preroll > 0:
+            # start from the garments' rest shape in the T-pose (no interpenetration: L-Coll = H-Coll = 0) and
+            # simulate the body's lead-in from the T-pose to frame 1 (see run_preroll)
+            from smln.body import lbs, load_body
+            from smln.motion.posing import preroll_sequence
+
+            lead = preroll_sequence(load_body(scene.shape), scene.body, frame=n1, num_frames=preroll)
+            self.preroll_body = np.concatenate([load_body(scene.shape).rest_vertices.numpy()[None],
+                                                lead.vertices.numpy()]).astype(np.float32)
+            self.preroll_pins = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights,
+                                    lead.transforms).numpy().astype(np.float32)
+            self.preroll_pins = np.concatenate([rest[None], self.preroll_pins])
+            self.state_0.particle_q.assign(rest)
+            self.state_0.particle_qd.zero_()
+            self._set_body(self.preroll_body[0], np.zeros_like(self.preroll_body[0]))
+        else:
+            # start from skinned frame 1, like SMLN's rollouts (frames 0-1 skinned). The initial velocity is the
+            # skinned one of the next frame (2 - 1): the clips' frame 0 -> 1 jump (~26 cm mean body displacement
+            # on 05_01_walk) would throw the cloth.
+            self.preroll_body = None
+            self.state_0.particle_q.assign(self.skinned[n1])
+            self.state_0.particle_qd.assign((self.skinned[n2] - self.skinned[n1]) * FPS)
+            self._set_body(body[n1], np.zeros_like(body[n1]))
 
     @property
     def num_particles(self) -> int:
@@ -214,30 +233,46 @@ class NewtonClothSim:
         self.wp_mesh.velocities.assign(velocity)
         self.wp_mesh.refit()
 
-    def step_frame(self, t: int) -> np.ndarray:
-        """Advance from frame t-1 to frame t (``substeps`` solver steps); returns (V, 3) float32 positions, m."""
-        b0, b1 = self.body_frames[t - 1], self.body_frames[t]
+    def _advance(self, b0: np.ndarray, b1: np.ndarray, pin0: np.ndarray, pin1: np.ndarray) -> np.ndarray:
+        """One 30 fps frame: ``substeps`` solver steps with the body (and pins) moving from b0 (pin0) to b1 (pin1)."""
         body_vel = (b1 - b0) * FPS
         for k in range(1, self.substeps + 1):
             w = k / self.substeps
             self._set_body((1.0 - w) * b0 + w * b1, body_vel)
             if self.pinned.any():
                 q = self.state_0.particle_q.numpy()
-                q[self.pinned] = ((1.0 - w) * self.skinned[t - 1] + w * self.skinned[t])[self.pinned]
+                q[self.pinned] = ((1.0 - w) * pin0 + w * pin1)[self.pinned]
                 self.state_0.particle_q.assign(q)
             self.pipeline.collide(self.state_0, self.contacts)
             self.solver.step(self.state_0, self.state_1, self.control, self.contacts, self.dt)
             self.state_0, self.state_1 = self.state_1, self.state_0
         return self.state_0.particle_q.numpy().astype(np.float32)
 
+    def run_preroll(self) -> np.ndarray | None:
+        """Simulate the lead-in (T-pose -> frame 1) if one was asked for; returns the cloth at frame 1 (V, 3)."""
+        if self.preroll_body is None:
+            return None
+        x = None
+        for k in range(1, len(self.preroll_body)):
+            x = self._advance(self.preroll_body[k - 1], self.preroll_body[k], self.preroll_pins[k - 1],
+                              self.preroll_pins[k])
+        return x
+
+    def step_frame(self, t: int) -> np.ndarray:
+        """Advance from frame t-1 to frame t (``substeps`` solver steps); returns (V, 3) float32 positions, m."""
+        return self._advance(self.body_frames[t - 1], self.body_frames[t], self.skinned[t - 1], self.skinned[t])
+
 
 def physics_frames(scene, num_frames: int | None = None, *, substeps: int = 20, iterations: int = 10,
-                   self_contact: bool = True, progress: bool = False) -> Iterator[RolloutFrame]:
+                   self_contact: bool = True, progress: bool = False, preroll: int = 0) -> Iterator[RolloutFrame]:
     """Frames 0 .. n-1 of the physics reference in :class:`smln.rollout.RolloutFrame` form.
 
     Frames 0 and 1 are the skinned initial state (as in :func:`smln.rollout.rollout`); later frames are
-    simulated. ``metrics["ms_model"]`` is the wall time of the frame's simulation in ms (0 for frames 0-1);
-    ``metrics["ms_setup"]`` on frame 0 is the set-up time (model build, kernel load/compile).
+    simulated. With ``preroll`` > 0 frame 1 is instead the result of simulating the garments from their rest
+    shape through a ``preroll``-frame lead-in from the T-pose to frame 1's pose (frame 0 stays skinned).
+    ``metrics["ms_model"]`` is the wall time of the frame's simulation in ms (0 for frames 0-1);
+    ``metrics["ms_setup"]`` on frame 0 is the set-up time (model build, kernel load/compile) and
+    ``metrics["ms_preroll"]`` the time of the lead-in.
     """
     from smln.losses import ClothRest
 
@@ -246,11 +281,18 @@ def physics_frames(scene, num_frames: int | None = None, *, substeps: int = 20, 
     body_faces = scene.body.faces.numpy()
     zeros = np.zeros((scene.cloth.num_vertices, 3), np.float32)
     t0 = time.perf_counter()
-    sim = NewtonClothSim(scene, substeps=substeps, iterations=iterations, self_contact=self_contact) if n > 2 else None
+    sim = (NewtonClothSim(scene, substeps=substeps, iterations=iterations, self_contact=self_contact,
+                          preroll=preroll) if n > 2 else None)
     setup_ms = 1e3 * (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    x_preroll = sim.run_preroll() if sim is not None else None
+    preroll_ms = 1e3 * (time.perf_counter() - t0)
     for t in range(n):
         t0 = time.perf_counter()
-        x = scene.skinned[t].numpy() if t < 2 else sim.step_frame(t)
+        if t == 1 and x_preroll is not None:
+            x = x_preroll
+        else:
+            x = scene.skinned[t].numpy() if t < 2 else sim.step_frame(t)
         ms = 1e3 * (time.perf_counter() - t0) if t >= 2 else 0.0
         b = scene.body.vertices[t].numpy()
         fm = frame_metrics(x, b, rest, body_faces=body_faces)
@@ -258,6 +300,7 @@ def physics_frames(scene, num_frames: int | None = None, *, substeps: int = 20, 
         m["ms_model"] = ms
         if t == 0:
             m["ms_setup"] = setup_ms
+            m["ms_preroll"] = preroll_ms
         if progress:
             print(f"  frame {t:4d}  {ms / 1e3:6.1f} s  H-Coll {m['h_coll']:.2f}%  L-Coll {m['l_coll']:.2f}%  "
                   f"strain mean {100 * m['strain_mean']:.2f}% max {100 * m['strain_max']:.1f}%", flush=True)
@@ -267,7 +310,7 @@ def physics_frames(scene, num_frames: int | None = None, *, substeps: int = 20, 
 
 def run(outfit: str, clip: str, frames: int, out: str | Path, *, shape: str = DEFAULT_SHAPE,
         edge_length: float = TRAINING_EDGE_LENGTH, substeps: int = 20, iterations: int = 10,
-        self_contact: bool = True, progress: bool = True) -> list[RolloutFrame]:
+        self_contact: bool = True, progress: bool = True, preroll: int = 0) -> list[RolloutFrame]:
     """Simulate ``frames`` frames of ``outfit`` on ``shape`` along ``clip`` and write the rollout NPZ ``out``."""
     from smln.data_sampling import make_scene
     from smln.export import save_rollout_npz
@@ -279,13 +322,13 @@ def run(outfit: str, clip: str, frames: int, out: str | Path, *, shape: str = DE
               f"({scene.cloth.num_layers} layers, edge {edge_length} m), body {scene.body.vertices.shape[1]} "
               f"vertices, {scene.num_frames} frames, {substeps} substeps x {iterations} VBD iterations", flush=True)
     result = list(physics_frames(scene, frames, substeps=substeps, iterations=iterations,
-                                 self_contact=self_contact, progress=progress))
+                                 self_contact=self_contact, progress=progress, preroll=preroll))
     import newton
 
     meta = {"outfit": outfit, "clip": clip, "shape": shape, "variant": "physics (newton VBD)",
             "solver": "newton.solvers.SolverVBD", "newton_version": newton.__version__,
             "edge_length": edge_length, "substeps": substeps, "iterations": iterations,
-            "self_contact": self_contact, "contact_radius": CONTACT_RADIUS,
+            "self_contact": self_contact, "preroll": preroll, "contact_radius": CONTACT_RADIUS,
             "self_contact_radius": SELF_CONTACT_RADIUS, "contact_ke": CONTACT_KE,
             "setup_ms": result[0].metrics.get("ms_setup", 0.0)}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
@@ -308,6 +351,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--substeps", type=int, default=20)
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--no-self-contact", action="store_true", help="turn layer-layer / self contact off")
+    p.add_argument("--preroll", type=int, default=0,
+                   help="simulate a lead-in of this many frames from the T-pose rest garments to frame 1 "
+                        "(0: start from the skinned frame 1)")
     p.add_argument("--out", default=None, help="rollout NPZ (default: runs/physics/<outfit>__<clip>.npz)")
     p.add_argument("--json", help="also write the per-frame metrics as JSON")
     a = p.parse_args(argv)
@@ -318,7 +364,7 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(2) from None
     out = a.out or f"runs/physics/{a.outfit}__{a.clip}.npz"
     frames = run(a.outfit, a.clip, a.frames, out, shape=a.shape, edge_length=a.edge_length, substeps=a.substeps,
-                 iterations=a.iterations, self_contact=not a.no_self_contact)
+                 iterations=a.iterations, self_contact=not a.no_self_contact, preroll=a.preroll)
     if a.json:
         Path(a.json).write_text(json.dumps([f.metrics for f in frames], indent=1))
 

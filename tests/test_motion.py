@@ -127,3 +127,36 @@ def test_absurd_frame_count_is_refused(tmp_path):
     path.write_text(head + "Frames: 999999999\nFrame Time: 0.008333\n0 0 0\n")
     with pytest.raises(MotionError, match="over the limit"):
         load_bvh(path)
+
+
+def test_preroll_goes_from_the_t_pose_to_the_clip_frame_with_rigid_bones(body, walk_sequence):
+    """The lead-in ends exactly on the clip's pose, starts near the T-pose, eases in, arrives with the clip's
+    velocity (or at rest), and keeps every bone's length (parent head -> child head) at every frame."""
+    from smln.body.skinning import compose
+    from smln.motion.posing import preroll_sequence
+
+    lead = preroll_sequence(body, walk_sequence, frame=1, num_frames=24)
+    assert lead.vertices.shape == (24, *walk_sequence.vertices.shape[1:])
+    assert torch.allclose(lead.vertices[-1], walk_sequence.vertices[1], atol=1e-5)
+    assert torch.allclose(lead.transforms[-1], walk_sequence.transforms[1], atol=1e-5)
+    # first step: smoothstep(1/24) ~ 0.5 % of the way
+    assert (lead.vertices[0] - body.rest_vertices).norm(dim=-1).max() < 0.01
+    steps = (lead.vertices[1:] - lead.vertices[:-1]).norm(dim=-1).max(dim=1).values
+    assert steps[0] < steps[len(steps) // 2]
+    # arrival: the mean body velocity of the last step is the clip's (frame 1 -> 2) one, to a few mm per frame
+    clip_v = (walk_sequence.vertices[2] - walk_sequence.vertices[1]).mean(0)
+    assert clip_v.norm() > 0.005
+    assert ((lead.vertices[-1] - lead.vertices[-2]).mean(0) - clip_v).norm() < 0.3 * clip_v.norm()
+    rest_end = preroll_sequence(body, walk_sequence, frame=1, num_frames=24, match_velocity=False)
+    assert torch.allclose(rest_end.vertices[-1], walk_sequence.vertices[1], atol=1e-5)
+    assert (rest_end.vertices[-1] - rest_end.vertices[-2]).norm(dim=-1).max() < 0.25 * steps.max()
+    # posed bone heads: h_c = A_c(head_c) with A the A-pose -> posed transform
+    anny = compose(lead.transforms.double(), body.tpose_transforms.double().unsqueeze(0))
+    heads = body.rest_bone_poses[:, :3, 3].double()
+    posed = (anny[..., :3] @ heads[None, :, :, None]).squeeze(-1) + anny[..., 3]
+    parents = torch.tensor(body.bone_parents)
+    child = torch.nonzero(parents >= 0).squeeze(1)
+    lengths = (posed[:, child] - posed[:, parents[child]]).norm(dim=-1)  # (N, C)
+    assert torch.allclose(lengths, lengths[:1].expand_as(lengths), atol=1e-5)
+    with pytest.raises(ValueError):
+        preroll_sequence(body, walk_sequence, num_frames=0)
