@@ -28,7 +28,7 @@ Set-up, matched to SMLN (``docs/ARCHITECTURE.md``):
   interpenetrations of skinning (4-5 % of the outer layer behind the inner one, up to 1 cm deep) made the
   self-contact tear the cloth on fast or 3-layer scenes (mean edge strain 22-92 %); with a 40-frame lead-in
   tshirt_jacket on 09_06_run kept a mean strain of 1.1 % and H-Coll 0 % from frame 4 on.
-- time: 30 fps frames, ``--substeps`` (default 10) solver steps per frame: with fewer the body (up to ~2 cm per
+- time: 30 fps frames, ``--substeps`` (default 20) solver steps per frame: with fewer the body (up to ~2 cm per
   frame on a walk) tunnels through the 3 mm contact radius.
 
 Warp's CPU kernels run on one thread; the first run compiles kernels for ~40 s (cached under
