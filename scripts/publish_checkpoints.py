@@ -55,6 +55,12 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
             card["initialised_from"] = {"path": init, "steps": tr0.get("steps"),
                                         "wall_time_s": tr0.get("wall_time_s"), "hardware": tr0.get("hardware"),
                                         "initialised_from": parent.get("initialised_from")}
+    entry = card.get("initialised_from")
+    if entry and "loss_weights" not in entry and (Path(entry.get("path", "")) / "card.json").is_file():
+        # runs started before the trainer recorded the parent's loss weights: read them from the parent card
+        parent = json.loads((Path(entry["path"]) / "card.json").read_text())
+        if parent.get("sha256") != card.get("sha256"):
+            entry["loss_weights"] = parent.get("loss_weights")
     out = dest / variant
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
@@ -82,7 +88,9 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
     ]
     lineage, parent = [], card.get("initialised_from")
     while parent:  # fine-tuned runs: the runs they continued, newest first
-        lineage.append(f"{parent.get('steps')} steps / {parent.get('wall_time_s')} s ({parent.get('hardware')})")
+        rep = (parent.get("loss_weights") or {}).get("repulsion")
+        lineage.append(f"{parent.get('steps')} steps / {parent.get('wall_time_s')} s ({parent.get('hardware')}"
+                       + (f", repulsion weight {rep:g}" if rep is not None else "") + ")")
         parent = parent.get("initialised_from")
     if lineage:
         md.append("- continued from earlier training: " + "; then from ".join(lineage)

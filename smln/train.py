@@ -265,7 +265,8 @@ class Trainer:
         tr = card.get("training", {})
         self.step = int(tr.get("steps", 0))
         self.parent = {"path": str(path), "steps": self.step, "wall_time_s": tr.get("wall_time_s"),
-                       "hardware": tr.get("hardware"), "initialised_from": card.get("initialised_from")}
+                       "hardware": tr.get("hardware"), "loss_weights": card.get("loss_weights"),
+                       "initialised_from": card.get("initialised_from")}
 
     # -- validation ------------------------------------------------------------------------------------------
     def validate(self) -> dict[str, float]:
