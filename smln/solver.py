@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from smln.body.skinning import lbs
-from smln.cloth import Cloth
+from smln.cloth import DT, Cloth
 from smln.losses import BodyStep, ClothRest, LossWeights, total_loss
 from smln.losses.repulsion import PAIR_RADIUS, layer_pairs
 from smln.metrics import frame_metrics
@@ -33,6 +33,11 @@ def solve_step(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """One implicit step: L-BFGS on the free vertices from the inertial guess x_t + v_t.
 
+    The unknowns are mass-scaled offsets from the guess, y = (x - (x_t + v_t)) * sqrt(m) / dt, so the inertia
+    term is exactly ||y||^2 / 2 (identity Hessian): a diagonal preconditioner without which L-BFGS stops far
+    from the minimum on stiff cloth (a free falling 5 x 5 sheet: 33 % error in the fall after 60 iterations
+    unscaled, < 0.5 % scaled; ``tests/test_solver.py``).
+
     Args:
         x_prev, x_cur: (V, 3) positions at t-1 and t, meters.
         pinned_next: (V, 3) skinned positions at t+1 (used on pinned rows).
@@ -45,14 +50,15 @@ def solve_step(
     """
     pinned = rest.pinned
     guess = torch.where(pinned[:, None], pinned_next, 2 * x_cur - x_prev)
-    free = guess[~pinned].clone().requires_grad_(True)
+    scale = (rest.mass[~pinned].clamp_min(1e-12).sqrt() / DT)[:, None]  # sqrt(kg) / s
+    free = torch.zeros_like(guess[~pinned]).requires_grad_(True)
     pairs = layer_pairs(x_cur, rest, radius=pair_radius) if rest.num_layers > 1 and weights.repulsion else None
     opt = torch.optim.LBFGS([free], lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                             tolerance_grad=1e-9, tolerance_change=1e-12, history_size=20)
 
     def assemble() -> torch.Tensor:
         x = pinned_next.clone()
-        x[~pinned] = free
+        x[~pinned] = guess[~pinned] + free / scale
         return x
 
     def closure() -> torch.Tensor:
