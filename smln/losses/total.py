@@ -46,13 +46,15 @@ class LossWeights:
         """The weights SMLN trains with and the reference solver uses: the paper's, but λr = ``TRAINING_REPULSION``.
 
         With the paper's λr = 1e3 the repulsion is 10x softer than the body penalty and loses against stretch
-        in tight places (3 mm inside the clearance it pushes with 3e3 * (6e-3)^2 = 0.1 N, the order of the
-        stretch force of one strained 3.5 cm edge); minimising the loss itself then leaves the layers
+        in tight places (a pair interpenetrated by 3 mm, 6 mm short of the clearance, is pushed apart with
+        3 * 1e3 * (6e-3)^2 = 0.1 N, the order of the stretch force of one strained 3.5 cm edge); minimising
+        the loss itself then leaves the layers
         interpenetrating. Measured with the L-BFGS solver (``bench/solver_weights.py``), tshirt_jacket on
-        the test clip 05_01_walk, frames 2-24: L-Coll 8.5 % with λr = 1e3 and a 2 cm pair radius, 3.1 % with
+        the test clip 05_01_walk, frames 2-24: L-Coll 4.4 % with λr = 1e3 and a 2 cm pair radius, 3.1 % with
         λr = 1e4, 1.6 % with λr = 1e4 and the 4 cm radius of :data:`~smln.losses.repulsion.PAIR_RADIUS`
-        (mean strain 5.7 → 4.7 %); λr = 3e4 or a 3e4 body weight traded L-Coll for H-Coll or strain, and 1e5
-        for both made L-BFGS crumple the cloth (12 % strain).
+        (H-Coll 2.7 → 2.1 %, mean strain 5.3 → 4.7 %); λr = 3e4 raised H-Coll (3.3 %) and strain (5.6 %), a 3e4
+        body weight raised strain (6.5 %). Fine-tuning with it took the 120-frame validation L-Coll of the full
+        model from 6.4 % to about 1.5 % within 4k steps (docs/RESULTS.md).
         """
         return cls(repulsion=TRAINING_REPULSION)
 
