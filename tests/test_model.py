@@ -161,3 +161,40 @@ def test_backward_reaches_all_weights(scene):
     unused = "coarse_encoders.2."  # level 3 is not visited by the small schedule
     missing = [n for n, w in model.named_parameters() if w.grad is None and not n.startswith(unused)]
     assert not missing, missing
+
+
+def test_repulsion_cascade_lets_the_outer_layer_see_the_pushed_middle_layer():
+    """Three stacked sheets: the middle one 2 mm behind the inner one, the outer one 6 mm in front of the middle
+    one (beyond the 5 mm threshold). Applied all at once only the middle layer is pushed; in the cascade the
+    outer layer is processed against the middle layer's pushed position and is pushed too. With two layers the
+    cascade is exactly one call."""
+    from types import SimpleNamespace
+
+    from smln.model import SMLN, SMLNConfig
+
+    torch.manual_seed(0)
+    g = torch.stack(torch.meshgrid(torch.arange(3.0), torch.arange(3.0), indexing="ij"), -1).reshape(-1, 2) * 0.01
+    sheet = torch.cat([g, torch.zeros(9, 1)], 1)
+    quads = [(0, 1, 4), (0, 4, 3), (1, 2, 5), (1, 5, 4), (3, 4, 7), (3, 7, 6), (4, 5, 8), (4, 8, 7)]
+    faces = torch.tensor([[a + 9 * k, c + 9 * k, b + 9 * k] for k in range(3) for a, b, c in quads])  # normals +z
+    x = torch.cat([sheet, sheet + torch.tensor([0, 0, -0.002]), sheet + torch.tensor([0, 0, 0.004])])
+    layer = torch.arange(3).repeat_interleave(9)
+    pairs = torch.stack([torch.arange(9, 27), torch.cat([torch.arange(9), torch.arange(9, 18)])])
+    model = SMLN(SMLNConfig(use_repulsion_layer=True))
+    model.repulsion.mlp[-1].bias.data.fill_(3.0)  # a sizeable push (softplus(3) * clearance)
+    free = torch.ones(27, 1)
+    topo3 = SimpleNamespace(num_layers=3, layer_index=layer, faces=faces)
+    graph = SimpleNamespace(x_cur=x, repulsion_pairs=pairs)
+    a, rep = model._cascade_repulsion(topo3, graph, x, free)
+    assert (a[9:18, 2] > 0).all()  # middle layer pushed out of the inner one
+    assert (a[18:, 2] > 0).all()  # ... and the outer layer reacts in the same step
+    at_once, _ = model.repulsion(x, x, torch.tensor([[0.0, 0.0, 1.0]]).expand(27, 3), pairs)
+    assert torch.count_nonzero(at_once[18:]) == 0
+    assert rep["active_pairs"].shape[1] == 18
+    # two layers: identical to one call of the layer
+    topo2 = SimpleNamespace(num_layers=2, layer_index=layer.clamp(max=1), faces=faces[:16])
+    pairs2 = pairs[:, :9]
+    a2, _ = model._cascade_repulsion(topo2, SimpleNamespace(x_cur=x[:18], repulsion_pairs=pairs2), x[:18], free[:18])
+    n2 = torch.tensor([[0.0, 0.0, 1.0]]).expand(18, 3)
+    ref, _ = model.repulsion(x[:18], x[:18], n2, pairs2)
+    assert torch.allclose(a2, ref, atol=1e-6)
