@@ -195,6 +195,7 @@ def test_repulsion_cascade_lets_the_outer_layer_see_the_pushed_middle_layer():
     topo2 = SimpleNamespace(num_layers=2, layer_index=layer.clamp(max=1), faces=faces[:16])
     pairs2 = pairs[:, :9]
     a2, _ = model._cascade_repulsion(topo2, SimpleNamespace(x_cur=x[:18], repulsion_pairs=pairs2), x[:18], free[:18])
-    n2 = torch.tensor([[0.0, 0.0, 1.0]]).expand(18, 3)
-    ref, _ = model.repulsion(x[:18], x[:18], n2, pairs2)
+    from smln.geometry import vertex_normals
+
+    ref, _ = model.repulsion(x[:18], x[:18], vertex_normals(x[:18], faces[:16]), pairs2)
     assert torch.allclose(a2, ref, atol=1e-6)
