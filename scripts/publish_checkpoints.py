@@ -57,10 +57,13 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
                                         "initialised_from": parent.get("initialised_from")}
     entry = card.get("initialised_from")
     if entry and "loss_weights" not in entry and (Path(entry.get("path", "")) / "card.json").is_file():
-        # runs started before the trainer recorded the parent's loss weights: read them from the parent card
+        # runs started before the trainer recorded the parent's loss weights: read them from the parent card, or,
+        # when republishing (the parent path holds this very checkpoint), keep the lineage already published
         parent = json.loads((Path(entry["path"]) / "card.json").read_text())
         if parent.get("sha256") != card.get("sha256"):
             entry["loss_weights"] = parent.get("loss_weights")
+        elif parent.get("initialised_from"):
+            card["initialised_from"] = parent["initialised_from"]
     out = dest / variant
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
