@@ -215,12 +215,13 @@ class NewtonClothSim:
             from smln.body import lbs, load_body
             from smln.motion.posing import preroll_sequence
 
-            lead = preroll_sequence(load_body(scene.shape), scene.body, frame=n1, num_frames=preroll)
-            self.preroll_body = np.concatenate([load_body(scene.shape).rest_vertices.numpy()[None],
+            body_model = load_body(scene.shape)
+            lead = preroll_sequence(body_model, scene.body, frame=n1, num_frames=preroll)
+            lead_pins = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights, lead.transforms)
+            # frame 0 of the lead-in is the rest pose itself (body and garments at rest)
+            self.preroll_body = np.concatenate([body_model.rest_vertices.numpy()[None],
                                                 lead.vertices.numpy()]).astype(np.float32)
-            self.preroll_pins = lbs(cloth.rest_vertices, cloth.skin_indices, cloth.skin_weights,
-                                    lead.transforms).numpy().astype(np.float32)
-            self.preroll_pins = np.concatenate([rest[None], self.preroll_pins])
+            self.preroll_pins = np.concatenate([rest[None], lead_pins.numpy()]).astype(np.float32)
             self.state_0.particle_q.assign(rest)
             self.state_0.particle_qd.zero_()
             self._set_body(self.preroll_body[0], np.zeros_like(self.preroll_body[0]))

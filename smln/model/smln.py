@@ -215,21 +215,15 @@ class SMLN(nn.Module):
             a (V, 3) m/frame^2 (zero on pinned vertices) and the layer's extras, concatenated over the stages.
         """
         pairs = graph.repulsion_pairs
-        if topology.num_layers <= 2:
-            normals = vertex_normals(x_hat, topology.faces)
-            a, rep = self.repulsion(graph.x_cur, x_hat, normals, pairs)
-            return a * free, rep
         outer_layer = topology.layer_index.to(pairs.device)[pairs[0]]
         a = torch.zeros_like(x_hat)
         stages: list[dict[str, torch.Tensor]] = []
-        for k in range(1, topology.num_layers):  # 2-3 stages, one per adjacent layer pair
-            sel = outer_layer == k
-            normals = vertex_normals(x_hat + a, topology.faces)
-            a_k, rep = self.repulsion(graph.x_cur, x_hat + a, normals, pairs[:, sel])
+        for k in range(1, max(topology.num_layers, 2)):  # one stage per adjacent layer pair (1-2 in practice)
+            x_k = x_hat + a
+            a_k, rep = self.repulsion(graph.x_cur, x_k, vertex_normals(x_k, topology.faces), pairs[:, outer_layer == k])
             a = a + a_k * free
             stages.append(rep)
-        rep = {key: torch.cat([r[key] for r in stages], dim=-1) for key in stages[0]}
-        return a, rep
+        return a, {key: torch.cat([r[key] for r in stages], dim=-1) for key in stages[0]}
 
     def step(
         self,
