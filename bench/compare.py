@@ -44,6 +44,7 @@ from smln.data_sampling import make_scene  # noqa: E402
 from smln.evaluate import method_frames  # noqa: E402
 from smln.export import load_rollout_npz, save_rollout_npz  # noqa: E402
 from smln.garments import TRAINING_EDGE_LENGTH  # noqa: E402
+from smln.geometry import set_threads
 
 VARIANTS = (("SMLN (full)", "full"), ("no_repulsion_layer", "no_repulsion_layer"), ("baseline", "baseline"))
 PHYSICS = "physics (Newton VBD)"
@@ -248,7 +249,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--note", default="", help="free text for the environment line (e.g. other load)")
     p.add_argument("--notes", nargs="*", default=[], help="lines for the report's Notes section")
     a = p.parse_args(argv)
-    torch.set_num_threads(a.threads)
+    set_threads(a.threads)
     root = Path.cwd()
     from smln.checkpoint import load_checkpoint
 

@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from smln.geometry import set_threads
+
 MAX_BODY_DISTANCE = 0.5
 """Stated bound: no garment vertex farther than this from the nearest body vertex, m."""
 MAX_SKIN_DISTANCE = 0.4
@@ -141,7 +143,7 @@ def main(argv: list[str] | None = None) -> list[LongRunResult]:
     p.add_argument("--json", help="write the rows as JSON")
     p.add_argument("--markdown", help="write the table as markdown")
     a = p.parse_args(argv)
-    torch.set_num_threads(a.threads)
+    set_threads(a.threads)
     model, _ = load_checkpoint(a.checkpoint, map_location=a.device)
     results = []
     for clip in a.clips:

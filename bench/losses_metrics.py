@@ -3,49 +3,45 @@
 Setup: a body-like mesh of 12,804 vertices (an ellipsoid torso, icosphere subdivision 5, plus a head,
 subdivision 4) and two open elliptical tubes of 50 x 50 vertices each that follow the torso 1 cm and 2 cm
 outside it (5,000 cloth vertices, 9,800 faces). Reports medians of 20 runs (after 3 warm-ups) with
-``torch.set_num_threads(2)``, as JSON. The :func:`frame_metrics` variants run interleaved (round robin), so a
+2 threads (``--threads``), as JSON. The :func:`frame_metrics` variants run interleaved (round robin), so a
 busy machine slows them alike and their ratios stay comparable:
 
 - ``metrics_ms``: self-contained, as the evaluation scripts call it (``body_faces`` only): the body KD-tree
   (build + query of the 5,000 cloth vertices) and the normals of the body vertices it needs are computed
-  inside; one thread.
+  inside.
 - ``metrics_shared_tree_ms``: the body tree given, normals from the faces: what :func:`smln.rollout.rollout`
   pays per frame (it builds one tree per body frame and shares it with the graph build of the next step).
 - ``metrics_prebuilt_body_ms``: body normals and tree both given.
-- ``*_2workers_ms``: the same with ``workers=2`` (the KD-tree queries split over two threads; the tree build
-  and the numpy work stay on one).
 - ``loss_fwd_bwd_ms``: :func:`total_loss` forward + backward with a prebuilt :class:`BodyStep`
   (``_incl_body_step``: building it too; ``_cached_pairs``: with the repulsion pairs given).
 
-Target (issue 4): ``metrics_ms`` <= 5 ms median on 2 idle CPU cores; it measured 10.5-11.3 ms before the
-numpy/scipy rewrite of :func:`frame_metrics` (torch vertex normals and index_add, row gathers). What is left is
-mostly scipy's cKDTree: building the 12.8k-vertex body tree, querying the 5,000 cloth vertices in it and the
-2,500-point layer query take about 80 % of a single-threaded call. Interleaved A/B runs against the previous
-version on a loaded 2-core machine, one thread, as fractions of the previous self-contained time: self-contained
-0.75, body tree shared 0.63, body tree and normals given 0.56 (the previous version with both given: 0.71).
-With ``workers=2`` the queries (~60 % of the CPU time) split over the two cores: from the per-thread CPU times,
-on 2 idle cores about 0.57-0.61 self-contained, 0.44-0.47 with the tree shared, 0.39-0.41 with both given
-(estimates: on the loaded machine two threads ran no faster than one). So 5 ms is within reach only with the
-body tree shared and ``workers=2`` (the rollout shares the tree but calls with the default ``workers=1``); check
-it on an idle machine with this script.
+``--threads N`` (default 2) sets torch's threads and the KD-tree queries' OpenMP threads
+(:func:`smln.geometry.set_threads`).
+
+Targets (issue 4): ``metrics_ms`` <= 5 ms and ``loss_fwd_bwd_ms`` <= 20 ms, medians on 2 idle CPU cores. History
+on this machine (idle): session 2 metrics 15.6 ms (numpy/scipy rewrite), session 3 10.1 ms self-contained and
+loss 22.6-24.6 ms; session 4 replaced scipy's cKDTree by pykdtree (float32, OpenMP queries) and rewrote the
+losses coordinate-major (see docs/RESULTS.md for the figures).
 
 Run: ``python bench/losses_metrics.py``
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
 from smln.cloth import Cloth, Material
-from smln.geometry import build_tree, vertex_normals
+from smln.geometry import build_tree, set_threads, vertex_normals
 from smln.losses import BodyStep, ClothRest, layer_pairs, total_loss
 from smln.metrics import frame_metrics
 
@@ -125,7 +121,11 @@ def median_ms(fn: Callable[[], object], runs: int = 20, warmup: int = 3) -> floa
 
 
 def main() -> None:
-    torch.set_num_threads(2)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--threads", type=int, default=2, help="torch and KD-tree threads")
+    ap.add_argument("--json", help="write the results here too")
+    args = ap.parse_args()
+    set_threads(args.threads)
     torch.manual_seed(0)
     bv, bf = make_body()
     body = torch.as_tensor(bv)
@@ -151,15 +151,12 @@ def main() -> None:
     m = frame_metrics(x_np, body_next, rest, body_faces=body_faces)
     metrics = interleaved_median_ms(
         {
-            f"metrics{name}{'_2workers' if w == 2 else ''}_ms": (
-                lambda kw=kw, w=w: frame_metrics(x_np, body_next, rest, workers=w, **kw)
-            )
+            f"metrics{name}_ms": (lambda kw=kw: frame_metrics(x_np, body_next, rest, **kw))
             for name, kw in (
                 ("", {"body_faces": body_faces}),
                 ("_shared_tree", {"body_faces": body_faces, "body_tree": tree}),
                 ("_prebuilt_body", {"body_normals": bn, "body_tree": tree}),
             )
-            for w in (1, 2)
         }
     )
     result = {
@@ -180,7 +177,10 @@ def main() -> None:
         ),
         "sample_metrics": {k: round(v, 6) for k, v in m.values.items()},
     }
-    print(json.dumps(result, indent=2))
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(text + "\n")
 
 
 if __name__ == "__main__":

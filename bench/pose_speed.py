@@ -14,9 +14,8 @@ import os
 import statistics
 import time
 
-import torch
-
 from smln.body import load_body
+from smln.geometry import set_threads
 from smln.motion import load_bvh, pose_sequence, retarget
 from smln.motion.library import clip_path
 
@@ -29,7 +28,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json")
     a = p.parse_args()
-    torch.set_num_threads(a.threads)
+    set_threads(a.threads)
     body = load_body()
     times: dict[str, list[float]] = {"parse": [], "retarget": [], "pose": [], "total": []}
     for _ in range(a.repeats):

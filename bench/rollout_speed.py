@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from smln.cloth import Cloth
-from smln.geometry import vertex_normals
+from smln.geometry import set_threads, vertex_normals
 from smln.losses import BodyStep, ClothRest, layer_pairs, total_loss
 from smln.metrics import frame_metrics
 from smln.model import SMLN, SMLNConfig
@@ -196,7 +196,7 @@ def main() -> None:
         "cpus": os.cpu_count(), "load_before": round(os.getloadavg()[0], 2),
     }
     for threads in args.threads:
-        torch.set_num_threads(threads)
+        set_threads(threads)
         model = SMLN(cfg)
         out[f"threads_{threads}"] = {
             "inference": [inference(model, s, args.repeats) for s in infer],

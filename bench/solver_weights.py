@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from smln.data_sampling import make_scene
+from smln.geometry import set_threads
 from smln.losses import LossWeights
 from smln.solver import solver_rollout
 
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     p.add_argument("--json")
     p.add_argument("--markdown")
     args = p.parse_args(argv)
-    torch.set_num_threads(1)
+    set_threads(1)
     scene = make_scene(args.outfit, args.shape, args.motion, edge_length=args.edge_length, max_frames=args.frames)
     rows = []
     for rep, col, radius in CONFIGS:

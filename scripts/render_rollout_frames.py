@@ -13,11 +13,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from smln.data_sampling import make_scene
 from smln.evaluate import method_frames
 from smln.garments.render import BODY_COLOUR, LAYER_COLOURS, VIEWS, draw_meshes
+from smln.geometry import set_threads
 
 
 def main() -> None:
@@ -31,7 +31,7 @@ def main() -> None:
     p.add_argument("--view", default="front", choices=["front", "side", "back"])
     p.add_argument("--out", required=True)
     a = p.parse_args()
-    torch.set_num_threads(2)
+    set_threads(2)
 
     import matplotlib
 

@@ -20,6 +20,7 @@ import torch
 
 from smln.body import DEFAULT_SHAPE, load_body
 from smln.data_sampling import make_scene
+from smln.geometry import set_threads
 from smln.losses import ClothRest
 from smln.metrics import frame_metrics, sequence_metrics
 from smln.rollout import RolloutFrame
@@ -228,7 +229,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
         if a.markdown:
             Path(a.markdown).write_text(report)
         return results
-    torch.set_num_threads(a.threads)
+    set_threads(a.threads)
     methods: dict[str, object | None] = {}
     for ck in a.checkpoint:
         model, card = load_checkpoint(ck)

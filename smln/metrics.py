@@ -33,9 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
-from smln.geometry import build_tree
+from smln.geometry import PointTree, build_tree
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -134,12 +133,11 @@ def frame_metrics(
     rest: ClothRest,
     body_faces: torch.Tensor | np.ndarray | None = None,
     body_normals: torch.Tensor | np.ndarray | None = None,
-    body_tree: cKDTree | None = None,
-    workers: int = 1,
+    body_tree: PointTree | None = None,
 ) -> FrameMetrics:
     """All metrics of one frame (definitions in the module docstring).
 
-    Vectorised numpy/scipy on the CPU, single-threaded unless ``workers`` says otherwise. Without
+    Vectorised numpy on the CPU; the KD-tree queries use the threads set by :func:`smln.geometry.set_threads`. Without
     ``body_normals`` only the normals of the body vertices that are some cloth vertex's nearest are computed
     (from the faces around them: the same values as :func:`smln.geometry.vertex_normals` there).
 
@@ -151,7 +149,6 @@ def frame_metrics(
         body_normals: (Vb, 3) unit outward body vertex normals at this frame (:func:`smln.geometry.vertex_normals`).
         body_tree: prebuilt :func:`smln.geometry.build_tree` over ``body`` (skips the build, ~1 ms at 12k; e.g.
             shared with the graph build of the next step, see :func:`smln.rollout.rollout`).
-        workers: threads for the KD-tree queries (scipy ``workers``; -1 = all cores).
 
     Returns:
         :class:`FrameMetrics`.
@@ -183,8 +180,7 @@ def frame_metrics(
     xt = np.ascontiguousarray(x.T)
     bt = np.ascontiguousarray(b.T)
     tree = body_tree if body_tree is not None else build_tree(b)
-    bdist, bidx = tree.query(x, k=1, workers=workers)
-    bidx = np.asarray(bidx, dtype=np.int64)
+    bdist, bidx = tree.query(x, k=1)
     if body_normals is None:
         a = _normal_sums_at(bt, np.ascontiguousarray(_np_index(body_faces).T), bidx)
         bn = (a / np.sqrt(_dot3(a, a) + 1e-12)).astype(np.float32)  # as smln.geometry.vertex_normals
@@ -211,8 +207,8 @@ def frame_metrics(
         pairs = [(k, k - 1) for k in range(1, nl)] + [(nl - 1, k) for k in range(nl - 2)]
         found = []  # loops over layers (2-3), not vertices
         for q, r in pairs:
-            dist, idx = trees[r].query(x[sl[q]], k=1, workers=workers)
-            found.append((dist, np.asarray(idx, dtype=np.int64) + sl[r].start))
+            dist, idx = trees[r].query(x[sl[q]], k=1)
+            found.append((dist, idx + sl[r].start))
         a = _normal_sums_at(xt, ft, np.concatenate([g for _, g in found]), cross=fc)
         cn = (a / (np.sqrt(_dot3(a, a)) + 1e-12)).astype(np.float32)
         start = 0

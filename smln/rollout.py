@@ -22,11 +22,10 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from smln.body import lbs
 from smln.cloth import Cloth
-from smln.geometry import build_tree
+from smln.geometry import PointTree, build_tree
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
 from smln.model.smln import SMLN
@@ -125,9 +124,9 @@ def rollout(
     ).to(dev)
     body_d = body_v[:n].to(dev)
     zeros = np.zeros((cloth.num_vertices, 3), np.float32)
-    trees: dict[int, cKDTree] = {}
+    trees: dict[int, PointTree] = {}
 
-    def body_tree(t: int) -> cKDTree:
+    def body_tree(t: int) -> PointTree:
         """One KD-tree per body frame: the metrics of frame t and the graph of the step from t share it."""
         if t not in trees:
             trees.clear()

@@ -6,9 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
-import torch
-
 from smln.body import BODY_SHAPES, DEFAULT_SHAPE
+from smln.geometry import set_threads
 
 
 def main(args: argparse.Namespace) -> None:
@@ -40,7 +39,7 @@ def run(argv: list[str] | None = None) -> Path:
         out = out.with_name(out.name + ".npz")
     if out.exists() and not a.force:
         raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-    torch.set_num_threads(a.threads)
+    set_threads(a.threads)
     model = None
     if a.checkpoint:
         from smln.checkpoint import load_checkpoint

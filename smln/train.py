@@ -32,6 +32,7 @@ import torch
 
 from smln.body import BODY_SHAPES
 from smln.data_sampling import Scene, SceneCache
+from smln.geometry import set_threads
 from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
@@ -74,6 +75,7 @@ class TrainConfig:
     log_every: int = 10
     threads: int = 1
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
+    collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
     model: dict[str, Any] = field(default_factory=dict)
 
     def weights(self) -> LossWeights:
@@ -81,6 +83,8 @@ class TrainConfig:
         w = LossWeights.training()
         if self.repulsion_weight is not None:
             w.repulsion = self.repulsion_weight
+        if self.collision_weight is not None:
+            w.collision = self.collision_weight
         if not VARIANTS[self.variant][1]:
             w.repulsion = 0.0
         return w
@@ -469,6 +473,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
     p.add_argument("--repulsion-weight", type=float,
                    help="λr of the repulsion loss (default: LossWeights.training(), 1e4; ignored by baseline)")
+    p.add_argument("--collision-weight", type=float,
+                   help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -481,7 +487,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("lr", "lr"), ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
-                      ("repulsion_weight", "repulsion_weight")):
+                      ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args
@@ -489,7 +495,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
 
 def train(argv: list[str] | None = None) -> Trainer:
     cfg, args = parse_args(argv)
-    torch.set_num_threads(cfg.threads)
+    set_threads(cfg.threads)
     trainer = Trainer(cfg, Path(args.out), device=args.device)
     if args.resume:
         if not trainer.state_path().exists():

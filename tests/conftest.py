@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import pytest
-import torch
 
-torch.set_num_threads(2)
+from smln.geometry import set_threads
+
+set_threads(2)
 
 
 @pytest.fixture(scope="session")

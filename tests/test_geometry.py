@@ -10,6 +10,7 @@ import torch
 import trimesh
 
 from smln.geometry import (
+    PointTree,
     build_tree,
     close_pairs,
     dihedral_angles,
@@ -133,3 +134,29 @@ def test_vertex_neighbors(sphere):
     assert nb.shape == (len(sphere.vertices), 6)  # icosphere valence 5 or 6, padded with self
     for i in [0, 50, 600]:
         assert set(nb[i].tolist()) - {i} == set(sphere.vertex_neighbors[i])
+
+
+def test_point_tree_matches_brute_force_and_scipy_conventions():
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(-1, 1, (400, 3)).astype(np.float32)
+    q = rng.uniform(-1.2, 1.2, (150, 3)).astype(np.float32)
+    d_all = np.linalg.norm(q[:, None, :].astype(np.float64) - ref[None].astype(np.float64), axis=-1)
+    tree = PointTree(ref)
+    dist, idx = tree.query(q)
+    assert idx.dtype == np.int64 and dist.shape == (150,)
+    np.testing.assert_allclose(dist, d_all.min(1), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(d_all[np.arange(150), idx], d_all.min(1), rtol=1e-5, atol=1e-6)
+    # k nearest within a bound: ascending, missing ones are (inf, n) as in scipy
+    dist3, idx3 = tree.query(q, k=3, distance_upper_bound=0.2)
+    assert dist3.shape == idx3.shape == (150, 3)
+    srt = np.sort(d_all, 1)[:, :3]
+    want = np.where(srt < 0.2, srt, np.inf)
+    np.testing.assert_allclose(dist3, want, rtol=1e-5, atol=1e-6)
+    assert np.all((idx3 == 400) == np.isinf(dist3))
+    # more neighbours than points, and an empty tree
+    d5, i5 = PointTree(ref[:2]).query(q[:4], k=5)
+    assert np.isinf(d5[:, 2:]).all() and (i5[:, 2:] == 2).all() and np.isfinite(d5[:, :2]).all()
+    d0, i0 = PointTree(np.zeros((0, 3))).query(q[:4])
+    assert np.isinf(d0).all() and (i0 == 0).all()
+    with pytest.raises(ValueError, match="points"):
+        PointTree(np.zeros((5, 2)))

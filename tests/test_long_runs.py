@@ -54,11 +54,11 @@ def test_long_run_clip_is_a_test_clip() -> None:
 def test_full_clip_rollout_stays_sane(model, outfit: str) -> None:
     """Full-length rollout: no NaN, every vertex within the stated bound of the body, every frame either a
     network frame within the rollout's divergence bounds or a flagged fallback identical to skinning."""
-    import torch
 
+    from smln.geometry import set_threads
     from smln.motion import load_body_sequence
 
-    torch.set_num_threads(1)
+    set_threads(1)
     bench = _bench()
     r = bench.long_run(model, outfit, CLIP)
     from smln.body import load_body

@@ -122,7 +122,7 @@ def test_shared_body_tree_changes_nothing(scene, monkeypatch):
     assert len(seen) == 4 and all(n > 0 for _, _, n in seen)  # body edges exist, so the tree matters
     for tree, body_cur, _ in seen:
         assert tree is not None
-        np.testing.assert_array_equal(tree.data, body_cur.astype(np.float64))
+        np.testing.assert_array_equal(tree.points, body_cur.astype(np.float32))
     monkeypatch.setattr(SMLN, "step", lambda self, *a, body_tree=None, **kw: step(self, *a, **kw))
     own = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
     for f, g in zip(shared, own, strict=True):

@@ -4,8 +4,8 @@ Mesh (torch, differentiable, batched over leading dims): :func:`face_normals`, :
 :func:`vertex_normals`, :func:`unique_edges`, :func:`interior_edges`, :func:`hinge_normals`,
 :func:`dihedral_angles`, :func:`vertex_neighbors`.
 
-Proximity (scipy cKDTree; indices without gradient, distances differentiable): :func:`build_tree`,
-:func:`nearest_vertices`, :func:`signed_distance_along_normals`, :func:`close_pairs`.
+Proximity (pykdtree via :class:`PointTree`; indices without gradient, distances differentiable): :func:`build_tree`,
+:func:`nearest_vertices`, :func:`signed_distance_along_normals`, :func:`close_pairs`; :func:`set_threads`.
 """
 
 from smln.geometry.mesh import (
@@ -20,14 +20,17 @@ from smln.geometry.mesh import (
     vertex_normals,
 )
 from smln.geometry.proximity import (
+    PointTree,
     build_tree,
     close_pairs,
     nearest_vertices,
+    set_threads,
     signed_distance_along_normals,
 )
 
 __all__ = [
     "InteriorEdges",
+    "PointTree",
     "build_tree",
     "close_pairs",
     "dihedral_angles",
@@ -36,6 +39,7 @@ __all__ = [
     "hinge_normals",
     "interior_edges",
     "nearest_vertices",
+    "set_threads",
     "signed_distance_along_normals",
     "unique_edges",
     "vertex_neighbors",

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import torch
-from scipy.spatial import cKDTree
 
-from smln.geometry import signed_distance_along_normals
+from smln.geometry import PointTree, signed_distance_along_normals
 from smln.losses.rest import ClothRest
 
 COLLISION_EPS = 3e-3
@@ -18,7 +17,7 @@ def collision_energy(
     body_normals: torch.Tensor,
     rest: ClothRest,
     idx: torch.Tensor | None = None,
-    tree: cKDTree | None = None,
+    tree: PointTree | None = None,
     eps: float = COLLISION_EPS,
 ) -> torch.Tensor:
     """E = sum_i max(eps - d_i, 0)^3 over free cloth vertices, unweighted (weight in ``LossWeights``).

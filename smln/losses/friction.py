@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import torch
-from scipy.spatial import cKDTree
 
 from smln.cloth import GRAVITY
-from smln.geometry import signed_distance_along_normals
+from smln.geometry import PointTree, signed_distance_along_normals
 from smln.losses.rest import ClothRest
 
 FRICTION_RADIUS = 3e-3
@@ -24,7 +23,7 @@ def friction_energy(
     body_normals_next: torch.Tensor,
     rest: ClothRest,
     idx: torch.Tensor | None = None,
-    tree: cKDTree | None = None,
+    tree: PointTree | None = None,
     radius: float = FRICTION_RADIUS,
     g: float = GRAVITY,
 ) -> torch.Tensor:

@@ -5,10 +5,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import torch
-from scipy.spatial import cKDTree
 
 from smln.cloth import DT
-from smln.geometry import build_tree, nearest_vertices, vertex_normals
+from smln.geometry import PointTree, build_tree, nearest_vertices, vertex_normals
 from smln.losses.bending import bending_energy
 from smln.losses.collision import collision_energy
 from smln.losses.friction import friction_energy
@@ -72,7 +71,7 @@ class BodyStep:
     cur: torch.Tensor
     next: torch.Tensor
     normals_next: torch.Tensor
-    tree_next: cKDTree
+    tree_next: PointTree
 
     @classmethod
     def from_vertices(

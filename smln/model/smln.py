@@ -6,10 +6,10 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import torch
-from scipy.spatial import cKDTree
 from torch import nn
 
 from smln.cloth import DT, GRAVITY
+from smln.geometry import PointTree
 from smln.graph.hierarchy import check_rules
 from smln.graph.multilayer import (
     BODY_EDGE_DIM,
@@ -233,7 +233,7 @@ class SMLN(nn.Module):
         body_cur: torch.Tensor,
         body_next: torch.Tensor,
         pinned_next: torch.Tensor | None = None,
-        body_tree: cKDTree | None = None,
+        body_tree: PointTree | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
         graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree)
