@@ -195,7 +195,8 @@ def frame_metrics(
     }
 
     # cloth face cross products (2 area * normal): face normals for bend, vertex normals for the layers
-    ft = np.ascontiguousarray(rest.faces.cpu().numpy().T)
+    topo = rest.numpy_topology
+    ft = topo.faces
     fc = _face_cross(xt, ft)
 
     # layers: per adjacent pair, and outermost against the union of the inner layers
@@ -232,7 +233,7 @@ def frame_metrics(
         values["layer_collision_loss"] = 0.0
 
     # bend (PBNS): 1 - cos between adjacent face normals
-    hf = np.ascontiguousarray(rest.hinge_faces.cpu().numpy().T)
+    hf = topo.hinge_faces
     if hf.shape[1]:
         fn = fc / (np.sqrt(_dot3(fc, fc)) + 1e-12)
         values["bend"] = float(1.0 - _dot3(np.take(fn, hf[0], axis=1), np.take(fn, hf[1], axis=1)).mean())
@@ -240,9 +241,9 @@ def frame_metrics(
         values["bend"] = 0.0
 
     # edge strain
-    et = np.ascontiguousarray(rest.edges.cpu().numpy().T)
+    et = topo.edges
     de = np.take(xt, et[1], axis=1) - np.take(xt, et[0], axis=1)
-    strain = np.abs(np.sqrt(_dot3(de, de)) / rest.rest_length.cpu().numpy() - 1.0)
+    strain = np.abs(np.sqrt(_dot3(de, de)) / topo.rest_length - 1.0)
     values["strain_mean"] = float(strain.mean())
     values["strain_max"] = float(strain.max())
 

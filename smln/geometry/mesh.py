@@ -14,12 +14,75 @@ import torch
 _EPS = 1e-12
 
 
+# Coordinate-major ("structure of arrays") helpers. The differentiable mesh quantities below are computed on
+# (3, ..., N) tensors: gathers are ``index_select`` along the last axis (whose backward is one index_add, not
+# an accumulating index_put), and cross/dot products are elementwise on contiguous rows instead of reductions
+# over an axis of length 3. On the 2-layer 5,000-vertex benchmark cloth this halves the CPU time of the loss
+# forward + backward against the (V, 3) row form (bench/losses_metrics.py).
+
+
+def coordinate_major(x: torch.Tensor) -> torch.Tensor:
+    """(..., V, 3) -> (3, ..., V) contiguous copy (differentiable)."""
+    return x.movedim(-1, 0).contiguous()
+
+
+def gather_cm(xt: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """Columns ``idx`` of a coordinate-major tensor: (3, ..., V), (K,) -> (3, ..., K)."""
+    return xt.index_select(-1, idx)
+
+
+def gather_corners_cm(xt: torch.Tensor, corners: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Positions of the corners of C-tuples (faces: C = 3, hinges: C = 4) in one gather.
+
+    Args:
+        xt: (3, ..., V) coordinate-major positions.
+        corners: (N, C) int64 vertex indices.
+
+    Returns:
+        C tensors (3, ..., N): the k-th holds the k-th corner of every tuple.
+    """
+    n, c = corners.shape
+    g = xt.index_select(-1, corners.t().reshape(-1))  # (3, ..., C * N), corner-major
+    return g.split(n, dim=-1) if n else tuple(g for _ in range(c))
+
+
+def cross_cm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Cross product of coordinate-major vectors: (3, ...), (3, ...) -> (3, ...)."""
+    a0, a1, a2 = a.unbind(0)  # unbind, not a[k]: one backward node instead of three zero-filled selects
+    b0, b1, b2 = b.unbind(0)
+    return torch.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
+
+
+def dot_cm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Dot product of coordinate-major vectors: (3, ...), (3, ...) -> (...)."""
+    return (a * b).sum(0)
+
+
+def normalize_cm(v: torch.Tensor) -> torch.Tensor:
+    """Unit coordinate-major vectors; zero vectors stay (almost) zero instead of becoming NaN."""
+    return v / torch.sqrt(dot_cm(v, v) + _EPS)
+
+
+def face_cross_cm(xt: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Unnormalised face normals (x1 - x0) x (x2 - x0), norm = 2 * area: (3, ..., V), (F, 3) -> (3, ..., F)."""
+    x0, x1, x2 = gather_corners_cm(xt, faces)
+    return cross_cm(x1 - x0, x2 - x0)
+
+
+def vertex_normals_cm(xt: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals, coordinate-major: (3, ..., V), (F, 3) -> (3, ..., V).
+
+    The same values as :func:`vertex_normals` (sum of the adjacent faces' cross products, normalised).
+    """
+    c = face_cross_cm(xt, faces)  # (3, ..., F)
+    corners = faces.t().reshape(-1)  # corner k of every face, k = 0, 1, 2
+    acc = torch.zeros_like(xt).index_add(-1, corners, torch.cat((c, c, c), dim=-1))
+    return normalize_cm(acc)
+
+
 def _face_cross(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Unnormalised face normals (x1 - x0) x (x2 - x0); norm = 2 * area. Shape (..., F, 3)."""
-    x0 = x[..., faces[:, 0], :]
-    x1 = x[..., faces[:, 1], :]
-    x2 = x[..., faces[:, 2], :]
-    return torch.linalg.cross(x1 - x0, x2 - x0, dim=-1)
+    return face_cross_cm(coordinate_major(x), faces).movedim(0, -1)
 
 
 def _normalize(v: torch.Tensor) -> torch.Tensor:
@@ -64,12 +127,7 @@ def vertex_normals(x: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     Returns:
         (..., V, 3) unit normals; isolated vertices get ~0 vectors.
     """
-    c = _face_cross(x, faces)  # (..., F, 3), |c| = 2 area: area weighting for free
-    acc = torch.zeros_like(x)
-    dim = x.dim() - 2
-    for k in range(3):  # three corners, not a loop over faces
-        acc = acc.index_add(dim, faces[:, k], c)
-    return _normalize(acc)
+    return vertex_normals_cm(coordinate_major(x), faces).movedim(0, -1).contiguous()
 
 
 def unique_edges(faces: torch.Tensor) -> torch.Tensor:
@@ -156,11 +214,17 @@ def hinge_normals(
     Returns:
         n1, n2: (..., E, 3) unnormalised (norm = 2 * face area); e: (..., E, 3) edge vector x_b - x_a.
     """
-    xa = x[..., edges[:, 0], :]
-    e = x[..., edges[:, 1], :] - xa
-    n1 = torch.linalg.cross(e, x[..., opposite[:, 0], :] - xa, dim=-1)
-    n2 = torch.linalg.cross(x[..., opposite[:, 1], :] - xa, e, dim=-1)
-    return n1, n2, e
+    n1, n2, e = hinge_normals_cm(coordinate_major(x), edges, opposite)
+    return n1.movedim(0, -1), n2.movedim(0, -1), e.movedim(0, -1)
+
+
+def hinge_normals_cm(
+    xt: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`hinge_normals` on coordinate-major positions (3, ..., V); returns (3, ..., E) each."""
+    xa, xb, c1, c2 = gather_corners_cm(xt, torch.cat((edges, opposite), dim=1))
+    e = xb - xa
+    return cross_cm(e, c1 - xa), cross_cm(c2 - xa, e), e
 
 
 def dihedral_angles(x: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor) -> torch.Tensor:
@@ -174,11 +238,14 @@ def dihedral_angles(x: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor
     Returns:
         (..., E) angles.
     """
-    n1, n2, e = hinge_normals(x, edges, opposite)
-    n1, n2, e = _normalize(n1), _normalize(n2), _normalize(e)
-    sin = (torch.linalg.cross(n1, n2, dim=-1) * e).sum(-1)
-    cos = (n1 * n2).sum(-1)
-    return torch.atan2(sin, cos)
+    return dihedral_angles_cm(coordinate_major(x), edges, opposite)
+
+
+def dihedral_angles_cm(xt: torch.Tensor, edges: torch.Tensor, opposite: torch.Tensor) -> torch.Tensor:
+    """:func:`dihedral_angles` on coordinate-major positions (3, ..., V); returns (..., E)."""
+    n1, n2, e = hinge_normals_cm(xt, edges, opposite)
+    n1, n2, e = normalize_cm(n1), normalize_cm(n2), normalize_cm(e)
+    return torch.atan2(dot_cm(cross_cm(n1, n2), e), dot_cm(n1, n2))
 
 
 def vertex_neighbors(faces: torch.Tensor, num_vertices: int | None = None) -> torch.Tensor:

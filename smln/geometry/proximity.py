@@ -19,6 +19,8 @@ import torch
 from pykdtree.kdtree import KDTree as _KDTree
 from threadpoolctl import threadpool_limits
 
+from smln.geometry.mesh import coordinate_major, dot_cm
+
 ArrayLike = torch.Tensor | np.ndarray
 
 LEAF_SIZE = 16
@@ -163,7 +165,10 @@ def signed_distance_along_normals(
     r = _torch(ref, dev)
     n = _torch(ref_normals, dev)
     idx = idx.to(r.device)
-    d = ((q - r[idx].to(q.device)) * n[idx].to(q.device)).sum(-1)
+    # coordinate-major: the dot product is elementwise on contiguous rows (see smln.geometry.mesh)
+    r_at = coordinate_major(r.index_select(0, idx).to(q.device))
+    n_at = coordinate_major(n.index_select(0, idx).to(q.device))
+    d = dot_cm(coordinate_major(q) - r_at, n_at)
     return idx.to(dev), d
 
 

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from smln.geometry import dihedral_angles
+from smln.geometry import coordinate_major, dihedral_angles_cm
 from smln.losses.rest import ClothRest
 
 
@@ -31,6 +31,6 @@ def bending_energy(x: torch.Tensor, rest: ClothRest) -> torch.Tensor:
     Returns:
         scalar energy, J.
     """
-    theta = dihedral_angles(x, rest.hinges, rest.hinge_opposite)
+    theta = dihedral_angles_cm(coordinate_major(x), rest.hinges, rest.hinge_opposite)
     diff = torch.remainder(theta - rest.rest_angle + math.pi, 2.0 * math.pi) - math.pi
     return 0.5 * (rest.bend_coeff * diff * diff).sum()

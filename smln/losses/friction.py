@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from smln.cloth import GRAVITY
-from smln.geometry import PointTree, signed_distance_along_normals
+from smln.geometry import PointTree, coordinate_major, dot_cm, signed_distance_along_normals
 from smln.losses.rest import ClothRest
 
 FRICTION_RADIUS = 3e-3
@@ -51,11 +51,13 @@ def friction_energy(
     Returns:
         scalar energy, J.
     """
-    idx, d = signed_distance_along_normals(x_next, body_next, body_normals_next, idx=idx, tree=tree)
-    contact = (d.detach() < radius).to(x_next.dtype) * rest.free
-    n = body_normals_next[idx]
-    s = (x_next - x_cur) - (body_next[idx] - body_cur[idx])
-    st = s - (s * n).sum(-1, keepdim=True) * n
+    with torch.no_grad():  # contact is decided without gradient
+        idx, d = signed_distance_along_normals(x_next, body_next, body_normals_next, idx=idx, tree=tree)
+        contact = (d < radius).to(x_next.dtype) * rest.free
+        n = coordinate_major(body_normals_next.index_select(0, idx))  # (3, V)
+        body_move = coordinate_major(body_next.index_select(0, idx) - body_cur.index_select(0, idx))
+    s = coordinate_major(x_next - x_cur) - body_move  # relative slip of the step, (3, V)
+    st = s - dot_cm(s, n) * n
     c = SLIP_SMOOTHING
-    slip = torch.sqrt((st * st).sum(-1) + c * c) - c
+    slip = torch.sqrt(dot_cm(st, st) + c * c) - c
     return (rest.material.friction * g * rest.mass * contact * slip).sum()

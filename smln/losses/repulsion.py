@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from smln.geometry import close_pairs
+from smln.geometry import close_pairs, coordinate_major, dot_cm, gather_cm, gather_corners_cm
 from smln.losses.rest import ClothRest
 
 REPULSION_EPS = 3e-3
@@ -71,8 +71,16 @@ def repulsion_energy(
     Returns:
         scalar penalty, m^3.
     """
+    return repulsion_energy_cm(coordinate_major(x_next), coordinate_major(normals_next), pairs, rest, eps)
+
+
+def repulsion_energy_cm(
+    xt: torch.Tensor, nt: torch.Tensor, pairs: torch.Tensor, rest: ClothRest, eps: float = REPULSION_EPS
+) -> torch.Tensor:
+    """:func:`repulsion_energy` on coordinate-major positions and unit normals, (3, V) each."""
     o, i = pairs[:, 0], pairs[:, 1]
-    d = ((x_next[o] - x_next[i]) * normals_next[i]).sum(-1)
-    w = 1.0 - (rest.pinned[o] & rest.pinned[i]).to(x_next.dtype)
+    xo, xi = gather_corners_cm(xt, pairs)  # (3, P) each
+    d = dot_cm(xo - xi, gather_cm(nt, i))
+    w = 1.0 - (rest.pinned[o] & rest.pinned[i]).to(xt.dtype)
     pen = torch.clamp(eps - d, min=0.0)
     return (w * pen * pen * pen).sum()

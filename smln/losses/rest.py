@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from smln.cloth import Cloth, Material
@@ -35,6 +38,19 @@ def _rest_frames_inverse(x: torch.Tensor, faces: torch.Tensor) -> tuple[torch.Te
     dm_inv[:, 0, 1] = -b / (a * d)
     dm_inv[:, 1, 1] = 1.0 / d
     return dm_inv.float(), area.float()
+
+
+class NumpyTopology(NamedTuple):
+    """Coordinate-major numpy copies of the index arrays the metrics read every frame (made once per ClothRest).
+
+    Attributes:
+        faces: (3, F) int64; edges: (2, E) int64; hinge_faces: (2, H) int64; rest_length: (E,) float32, m.
+    """
+
+    faces: np.ndarray
+    edges: np.ndarray
+    hinge_faces: np.ndarray
+    rest_length: np.ndarray
 
 
 @dataclass
@@ -70,6 +86,20 @@ class ClothRest:
     pinned: torch.Tensor
     free: torch.Tensor
     material: Material
+
+    @cached_property
+    def numpy_topology(self) -> NumpyTopology:
+        """:class:`NumpyTopology` of this cloth (cached)."""
+
+        def cm(a: torch.Tensor) -> np.ndarray:
+            return np.ascontiguousarray(a.detach().cpu().numpy().T)
+
+        return NumpyTopology(
+            faces=cm(self.faces),
+            edges=cm(self.edges),
+            hinge_faces=cm(self.hinge_faces),
+            rest_length=np.ascontiguousarray(self.rest_length.detach().cpu().numpy(), dtype=np.float32),
+        )
 
     @property
     def num_layers(self) -> int:

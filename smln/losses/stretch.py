@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from smln.geometry import coordinate_major, dot_cm, gather_corners_cm
 from smln.losses.rest import ClothRest
 
 
@@ -26,14 +27,14 @@ def stretch_energy(x: torch.Tensor, rest: ClothRest) -> torch.Tensor:
     Returns:
         scalar energy, J (0 at rest, invariant to rigid motion).
     """
-    f = rest.faces
-    x0 = x[..., f[:, 0], :]
-    ds = torch.stack([x[..., f[:, 1], :] - x0, x[..., f[:, 2], :] - x0], dim=-1)  # (..., F, 3, 2)
-    deform = ds @ rest.dm_inv  # (..., F, 3, 2)
-    c = deform.transpose(-1, -2) @ deform  # right Cauchy-Green, (..., F, 2, 2)
-    g00 = 0.5 * (c[..., 0, 0] - 1.0)
-    g11 = 0.5 * (c[..., 1, 1] - 1.0)
-    g01 = 0.5 * c[..., 0, 1]
+    x0, x1, x2 = gather_corners_cm(coordinate_major(x), rest.faces)  # (3, ..., F) each
+    e1, e2 = x1 - x0, x2 - x0  # the columns of D_s
+    a = rest.dm_inv  # (F, 2, 2)
+    f0 = e1 * a[:, 0, 0] + e2 * a[:, 1, 0]  # columns of F = D_s D_m^-1, coordinate-major
+    f1 = e1 * a[:, 0, 1] + e2 * a[:, 1, 1]
+    g00 = 0.5 * (dot_cm(f0, f0) - 1.0)  # Green strain from the right Cauchy-Green C = F^T F
+    g11 = 0.5 * (dot_cm(f1, f1) - 1.0)
+    g01 = 0.5 * dot_cm(f0, f1)
     tr = g00 + g11
     tr_gg = g00 * g00 + g11 * g11 + 2.0 * g01 * g01
     m = rest.material

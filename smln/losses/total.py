@@ -7,13 +7,13 @@ from dataclasses import asdict, dataclass
 import torch
 
 from smln.cloth import DT
-from smln.geometry import PointTree, build_tree, nearest_vertices, vertex_normals
+from smln.geometry import PointTree, build_tree, coordinate_major, nearest_vertices, vertex_normals, vertex_normals_cm
 from smln.losses.bending import bending_energy
 from smln.losses.collision import collision_energy
 from smln.losses.friction import friction_energy
 from smln.losses.gravity import gravity_energy
 from smln.losses.inertia import inertia_energy
-from smln.losses.repulsion import layer_pairs, repulsion_energy
+from smln.losses.repulsion import layer_pairs, repulsion_energy_cm
 from smln.losses.rest import ClothRest
 from smln.losses.stretch import stretch_energy
 
@@ -136,8 +136,8 @@ def total_loss(
     if w.repulsion and rest.num_layers > 1:
         if pairs is None:
             pairs = layer_pairs(x_cur.detach(), rest)
-        normals = vertex_normals(x_next, rest.faces)
-        terms["repulsion"] = repulsion_energy(x_next, normals, pairs, rest)
+        xt = coordinate_major(x_next)
+        terms["repulsion"] = repulsion_energy_cm(xt, vertex_normals_cm(xt, rest.faces), pairs, rest)
     wd = asdict(w)
     loss = sum(wd[k] * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
