@@ -14,7 +14,7 @@ import viser
 
 from app.extras import MAX_ROLLOUT_UPLOAD_BYTES
 from app.scene import LAYER_COLOURS, Display
-from app.sources import VARIANT_LABELS, VARIANTS, Catalog, Setting
+from app.sources import PROJECTIONS, VARIANT_LABELS, VARIANTS, Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, MAX_OBJ_BYTES
 
 SPEEDS: tuple[str, ...] = ("0.25x", "0.5x", "1x", "2x")
@@ -58,6 +58,7 @@ class Controls:
     layer_handles: list[tuple[Any, Any]] = field(default_factory=list)
     variants_folder: Any = None
     upload_rollout: Any = None
+    projection: Any = None
 
     def outfit_label(self, key: str) -> str | None:
         return next((lab for lab, k in self.outfit_keys.items() if k == key), None)
@@ -83,6 +84,10 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
         clip = gui.add_dropdown("Motion clip", list(clip_keys), initial_value=_label(clip_keys, setting.clip),
                                 hint="train/test: the clip split of the motion library")
         shape = gui.add_dropdown("Body shape", catalog.shapes(), initial_value=setting.shape)
+        projection = gui.add_dropdown(
+            "Collision projection", list(PROJECTIONS), initial_value=setting.projection,
+            hint="off: the learned model alone (as evaluated in the paper); body / body+layers: move penetrating "
+                 "vertices back out after every network step (smln.projection)")
         upload_bvh = gui.add_upload_button("Upload BVH clip", icon=None, mime_type=".bvh",
                                            hint=f"CMU-style BVH, at most {MAX_BVH_BYTES // 2**20} MB")
         upload_obj = gui.add_upload_button("Upload OBJ garment", icon=None, mime_type=".obj",
@@ -134,7 +139,7 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
                     stream_fps, progress, status, follow, reset_camera, boxes, layer_pen,
                     body_pen, vectors, vector_scale, vector_threshold, wireframe, body, layers_folder,
                     metrics_folder, export_variant, downloads, outfit_keys, clip_keys,
-                    variants_folder=variants_folder, upload_rollout=upload_rollout)
+                    variants_folder=variants_folder, upload_rollout=upload_rollout, projection=projection)
 
 
 def _label(keys: dict[str, str], key: str) -> str:

@@ -31,7 +31,7 @@ from app.extras import ExtraRollout, ExtraRolloutError, ExtraStore, is_extra
 from app.plots import MetricsPanel
 from app.rollout_worker import FrameCache, RolloutWorker
 from app.scene import Display, SceneView, ViewSpec
-from app.sources import FPS, MAX_FRAMES, VARIANT_LABELS, VARIANTS, Catalog, Scenario, Setting
+from app.sources import FPS, MAX_FRAMES, PROJECTIONS, VARIANT_LABELS, VARIANTS, Catalog, Scenario, Setting
 from app.uploads import UploadError, UploadStore
 from smln.export import export_bytes, rollout_from_frames
 
@@ -145,11 +145,13 @@ class ViewerApp:
     def variants(self) -> list[str]:
         return list(self._variants)
 
-    def set_setting(self, outfit: str | None = None, clip: str | None = None, shape: str | None = None) -> bool:
-        """Change the outfit / clip / body shape (keys); restarts the rollouts. Returns True if it changed."""
+    def set_setting(self, outfit: str | None = None, clip: str | None = None, shape: str | None = None,
+                    projection: str | None = None) -> bool:
+        """Change the outfit / clip / body shape (keys) / collision projection; restarts the rollouts. Returns True
+        if it changed."""
         with self._lock:
             cur = self.worker.setting or self.catalog.default_setting()
-            new = Setting(outfit or cur.outfit, clip or cur.clip, shape or cur.shape)
+            new = Setting(outfit or cur.outfit, clip or cur.clip, shape or cur.shape, projection or cur.projection)
             if new == cur:
                 return False
             if new.outfit not in dict((k, 1) for _, k in self.catalog.outfits()):
@@ -158,6 +160,8 @@ class ViewerApp:
                 raise ValueError(f"unknown clip {new.clip!r}")
             if new.shape not in self.catalog.shapes():
                 raise ValueError(f"unknown body shape {new.shape!r}")
+            if new.projection not in PROJECTIONS:
+                raise ValueError(f"unknown collision projection {new.projection!r} (one of {', '.join(PROJECTIONS)})")
             self.frame_index = 0
             self._needs_camera_reset = True
             self.worker.configure(new, tuple(self._computed()))
@@ -271,11 +275,14 @@ class ViewerApp:
             raise ValueError(f"no computed frames for {self.label(variant)} yet")
         frames = list(cache.frames)
         s = scenario.setting
-        meta = {"outfit": s.outfit, "clip": s.clip, "shape": s.shape, "variant": variant, "complete": cache.done}
+        meta = {"outfit": s.outfit, "clip": s.clip, "shape": s.shape, "variant": variant, "complete": cache.done,
+                "projection": s.projection}
         r = rollout_from_frames(frames, scenario.cloth.faces, scenario.cloth.layer_index, scenario.body_faces,
                                 scenario.layer_names, fps=FPS, meta=meta)
         suffix, data = export_bytes(r, fmt, include_body=fmt == "glb")
         stem = "_".join(x.replace("upload:", "upload-").replace(":", "-") for x in (s.outfit, s.clip, variant))
+        if s.projection != "off":
+            stem += "_projection-" + s.projection.replace("+", "-")
         return stem + suffix, data
 
     def notify(self, title: str, body: str, client: Any = None, error: bool = True) -> None:
@@ -301,6 +308,7 @@ class ViewerApp:
         c.outfit.on_update(self._on_outfit)
         c.clip.on_update(self._on_clip)
         c.shape.on_update(self._on_shape)
+        c.projection.on_update(self._on_projection)
         c.upload_bvh.on_upload(self._on_upload_bvh)
         c.upload_obj.on_upload(self._on_upload_obj)
         c.upload_rollout.on_upload(self._on_upload_rollout)
@@ -334,6 +342,11 @@ class ViewerApp:
         if event.client is not None:
             self._apply_picker(shape=self.controls.shape.value)
 
+    @_guarded
+    def _on_projection(self, event: Any) -> None:
+        if event.client is not None:
+            self._apply_picker(projection=self.controls.projection.value)
+
     def _apply_picker(self, **kwargs: str) -> None:
         try:
             self.set_setting(**kwargs)
@@ -354,6 +367,8 @@ class ViewerApp:
             c.clip.value = lab
         if c.shape.value != s.shape:
             c.shape.value = s.shape
+        if c.projection is not None and c.projection.value != s.projection:
+            c.projection.value = s.projection
 
     @_guarded
     def _on_upload_bvh(self, event: Any) -> None:

@@ -24,6 +24,9 @@ from smln.metrics import frame_metrics
 from smln.motion import BodySequence, list_clips, load_body_sequence, manifest
 from smln.rollout import RolloutFrame, rollout
 
+PROJECTIONS: tuple[str, ...] = ("off", "body", "body+layers")
+"""Collision-projection choices of :class:`Setting` (``smln.projection``)."""
+
 VARIANTS: tuple[str, ...] = ("full", "no_repulsion_layer", "baseline", "skinning")
 """Variant keys in display order: the three checkpoints of the paper's ablation, then plain skinning."""
 
@@ -41,11 +44,16 @@ MAX_FRAMES = 300
 
 @dataclass(frozen=True)
 class Setting:
-    """What is animated: an outfit key, a clip key and a body-shape preset (all strings)."""
+    """What is animated: an outfit key, a clip key, a body-shape preset and the collision projection (strings).
+
+    ``projection`` is one of :data:`PROJECTIONS`: "off" (the learned model alone, as evaluated in the paper),
+    "body" or "body+layers" (the post-step of :mod:`smln.projection` after every network step).
+    """
 
     outfit: str
     clip: str
     shape: str = DEFAULT_SHAPE
+    projection: str = "off"
 
 
 @dataclass
@@ -261,8 +269,10 @@ class Catalog:
             return skinning_frames(scenario)
         if variant not in self.checkpoints:
             raise ValueError(f"no checkpoint for variant {variant!r} under {self.checkpoint_dir}")
+        proj = scenario.setting.projection
         return rollout(self.model(variant), scenario.cloth, scenario.sequence, scenario.body_faces,
-                       num_frames=scenario.num_frames, device=self.device, fallback=True)
+                       num_frames=scenario.num_frames, device=self.device, fallback=True,
+                       project_body=proj in ("body", "body+layers"), project_layers=proj == "body+layers")
 
 
-__all__ = ["FPS", "MAX_FRAMES", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario", "Setting"]
+__all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario", "Setting"]

@@ -56,8 +56,10 @@ def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
                            fm.body_penetration, m, False)
 
 
-def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu") -> Iterator[RolloutFrame]:
-    """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model."""
+def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu", project_body: bool = False,
+                  project_layers: bool = False) -> Iterator[RolloutFrame]:
+    """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model (optionally with the
+    collision projection of :mod:`smln.projection` after each step)."""
     if method == "skinning":
         return skinning_frames(scene, num_frames)
     if method == "solver":
@@ -67,7 +69,7 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
     from smln.rollout import rollout
 
     return rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=num_frames, device=device,
-                   fallback=True)
+                   fallback=True, project_body=project_body, project_layers=project_layers)
 
 
 def summarise(
@@ -101,12 +103,15 @@ def evaluate(
     edge_length: float = 0.02,
     device: str = "cpu",
     progress: bool = True,
+    project_body: bool = False,
+    project_layers: bool = False,
 ) -> list[RunResult]:
     """Run every method on every outfit × clip.
 
     Args:
         methods: display name -> loaded model (or None for ``skinning``/``solver``).
         outfits, motions: names. shape: body preset. frames: frames per clip (None = full clip).
+        project_body, project_layers: the models' rollouts use the collision projection (smln.projection).
     """
     from smln.garments import outfit_split
     from smln.motion import load_body_sequence
@@ -121,7 +126,8 @@ def evaluate(
             for name, model in methods.items():
                 t0 = time.time()
                 kind = name if model is None else "model"
-                seq_metrics, rows = summarise(method_frames(kind, model, scene, n, device), scene.skinned)
+                frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers)
+                seq_metrics, rows = summarise(frames_it, scene.skinned)
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
                           f"L-Coll {seq_metrics['l_coll']:.2f}% H-Coll {seq_metrics['h_coll']:.2f}% "
@@ -215,6 +221,10 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     p.add_argument("--no-skinning", action="store_true", help="leave out the skinning-only row")
     p.add_argument("--solver", action="store_true", help="add the reference L-BFGS solver (slow)")
     p.add_argument("--device", default="cpu")
+    p.add_argument("--project-body", action="store_true",
+                   help="models' rollouts move body-penetrating vertices back out after each step (smln.projection)")
+    p.add_argument("--project-layers", action="store_true",
+                   help="models' rollouts move each layer out of the one beneath after each step")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="write all results as JSON")
     p.add_argument("--markdown", help="write the tables as markdown")
@@ -233,7 +243,11 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     methods: dict[str, object | None] = {}
     for ck in a.checkpoint:
         model, card = load_checkpoint(ck)
-        methods[card.get("variant") or Path(ck).name] = model
+        name = card.get("variant") or Path(ck).name
+        if a.project_body or a.project_layers:
+            name += " + projection (" + "+".join(k for k, on in (("body", a.project_body),
+                                                                  ("layers", a.project_layers)) if on) + ")"
+        methods[name] = model
     if not a.no_skinning:
         methods["skinning"] = None
     if a.solver:
@@ -241,7 +255,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     outfits = resolve_names(a.outfits, "outfits")
     motions = resolve_names(a.motions, "motions")
     results = evaluate(methods, outfits, motions, shape=a.shape, frames=a.frames, edge_length=a.edge_length,
-                       device=a.device)
+                       device=a.device, project_body=a.project_body, project_layers=a.project_layers)
     report = make_report(results, outfits, motions, a.shape, a.frames)
     print(report)
     if a.markdown:

@@ -29,6 +29,7 @@ from smln.geometry import PointTree, build_tree
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
 from smln.model.smln import SMLN
+from smln.projection import project
 
 
 class RolloutError(RuntimeError):
@@ -76,6 +77,8 @@ def rollout(
     max_distance: float = 0.4,
     max_strain: float = 1.0,
     settle_steps: int = 1,
+    project_body: bool = False,
+    project_layers: bool = False,
 ) -> Iterator[RolloutFrame]:
     """Animate ``cloth`` on a body clip with ``model``.
 
@@ -99,6 +102,11 @@ def rollout(
             (x_prev := x_next - (skinned_t - skinned_{t-1})). Without it the relaxation jolt carries into the
             next frames and overshoots (the L-BFGS reference on a walk: mean strain 5.0-10.4 % over frames 3-11
             instead of 4.2-5.5 %). Training episodes start the same way (:mod:`smln.train`). 0 = off.
+        project_body: after each network step, move free vertices that are inside the body back out
+            (:mod:`smln.projection`; off by default: the paper's model resolves collisions on its own).
+        project_layers: after each network step, move each layer's free vertices out of the layer beneath.
+            With either, the frame's metrics gain ``projected_fraction`` (% of vertices moved),
+            ``projection_mean_mm`` / ``projection_max_mm`` (their displacement) and ``ms_projection``.
 
     Yields:
         :class:`RolloutFrame` for frames 0 .. num_frames-1.
@@ -119,6 +127,9 @@ def rollout(
     topology = model.make_topology(cloth_d)
     rest = ClothRest.from_cloth(cloth)
     faces_np = np.asarray(body_faces, dtype=np.int64)
+    projecting = project_body or project_layers
+    rest_d = rest.to(dev) if projecting else rest
+    faces_d = torch.as_tensor(faces_np, device=dev)
     skinned = lbs(
         cloth.rest_vertices.float(), cloth.skin_indices, cloth.skin_weights, transforms[:n]
     ).to(dev)
@@ -172,9 +183,21 @@ def rollout(
             )
             x_next = ex["x_next"]
             ms = 1e3 * (time.perf_counter() - t0)
+            extra = {"ms_model": ms}
+            if projecting:
+                t1 = time.perf_counter()
+                pr = project(x_next, rest_d, body_d[t] if project_body else None, faces_d, body_tree(t),
+                             layers=project_layers)
+                x_next = pr.x
+                extra.update(
+                    projected_fraction=100.0 * float(pr.moved.float().mean()),
+                    projection_mean_mm=1e3 * float(pr.displacement[pr.moved].mean()) if bool(pr.moved.any()) else 0.0,
+                    projection_max_mm=1e3 * float(pr.displacement.max()),
+                    ms_projection=1e3 * (time.perf_counter() - t1),
+                )
             reason = _divergence(x_next, skinned[t], max_distance)
             if reason is None:
-                frame = make_frame(t, x_next, _np(p), _np(a), False, {"ms_model": ms})
+                frame = make_frame(t, x_next, _np(p), _np(a), False, extra)
                 limit = max_strain + _max_strain(skinned[t], rest)
                 if frame.metrics["strain_max"] > limit:
                     reason = f"max edge strain {frame.metrics['strain_max']:.2f} > {limit:.2f}"
@@ -183,7 +206,7 @@ def rollout(
                     raise RolloutError(f"frame {t}: rollout diverged ({reason})")
                 x_next = skinned[t]
                 x_cur = skinned[t - 1]
-                frame = make_frame(t, x_next, zeros, zeros, True, {"ms_model": ms})
+                frame = make_frame(t, x_next, zeros, zeros, True, extra)
             yield frame
             if t - first < settle_steps and not frame.fallback:
                 x_prev, x_cur = x_next - (skinned[t] - skinned[t - 1]), x_next

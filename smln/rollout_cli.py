@@ -31,6 +31,10 @@ def run(argv: list[str] | None = None) -> Path:
     p.add_argument("--edge-length", type=float, default=0.02)
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--project-body", action="store_true",
+                   help="after each network step, move body-penetrating vertices back out (smln.projection)")
+    p.add_argument("--project-layers", action="store_true",
+                   help="after each network step, move each layer out of the one beneath (smln.projection)")
     p.add_argument("--out", required=True, help="output .npz")
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
     a = p.parse_args(argv)
@@ -48,7 +52,9 @@ def run(argv: list[str] | None = None) -> Path:
     kind = "model" if model is not None else ("solver" if a.solver else "skinning")
     scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=a.frames)
     t0 = time.time()
-    frames = list(method_frames(kind, model, scene, scene.num_frames, a.device))
+    if (a.project_body or a.project_layers) and kind != "model":
+        raise ValueError("--project-body / --project-layers apply to a --checkpoint rollout")
+    frames = list(method_frames(kind, model, scene, scene.num_frames, a.device, a.project_body, a.project_layers))
     save_rollout_npz(out, frames, scene.cloth, scene.body.faces)
     fallback = sum(f.fallback for f in frames)
     print(f"wrote {out}: {len(frames)} frames, {scene.cloth.num_vertices} garment vertices, "

@@ -99,6 +99,33 @@ def test_viewer_app_headless(tmp_path):
     assert not leaked, leaked
 
 
+def test_viewer_collision_projection_setting(tmp_path):
+    """The projection picker re-runs the model variants with smln.projection; a bad value is refused."""
+    from app.server import ViewerApp
+
+    ckpt = tiny_checkpoints(tmp_path / "ckpt", variants=("full",))
+    app = ViewerApp(port=free_port(), checkpoint_dir=ckpt, max_frames=6, variants=["full"])
+    try:
+        assert app.worker.wait_frames(6, timeout=90)
+        plain = app.worker.caches["full"].frames[4]
+        assert "projected_fraction" not in plain.metrics
+        assert app.set_setting(projection="body+layers") is True
+        assert app.controls.projection.value == "body+layers"
+        assert app.worker.wait_frames(6, timeout=90)
+        assert app.worker.scenario.setting.projection == "body+layers"
+        projected = app.worker.caches["full"].frames[4]
+        assert "projected_fraction" in projected.metrics
+        # the skinned start penetrates the body in places: the projection must have moved something
+        assert projected.metrics["projected_fraction"] > 0.0
+        name, _ = app.export("full", "npz")
+        assert name.endswith("_full_projection-body-layers.npz")
+        with pytest.raises(ValueError, match="projection"):
+            app.set_setting(projection="sideways")
+        assert app.setting.projection == "body+layers"
+    finally:
+        app.stop()
+
+
 def test_uploads_are_validated(tmp_path):
     store = UploadStore(tmp_path / "up")
     with pytest.raises(UploadError, match="expected a .bvh"):

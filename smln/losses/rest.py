@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import NamedTuple
 
@@ -153,7 +153,8 @@ class ClothRest:
         """A copy with every tensor on ``device`` and every floating tensor in ``dtype`` (e.g. float64 for
         gradcheck)."""
         kw = {}
-        for k, v in self.__dict__.items():
+        for k in (f.name for f in fields(self)):  # not __dict__: it also holds cached properties
+            v = getattr(self, k)
             if isinstance(v, torch.Tensor):
                 v = v.to(device=device, dtype=dtype if dtype is not None and v.is_floating_point() else None)
             kw[k] = v
