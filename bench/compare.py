@@ -11,6 +11,8 @@ on 2 cores; the punch (0.9 cm/frame body speed, fists up to 7 cm/frame) is the s
 
 - ``SMLN (full)``, ``no_repulsion_layer``, ``baseline``: the trained checkpoints (``checkpoints/<variant>`` if
   published, else ``runs/<variant>/best``), :func:`smln.rollout.rollout` with fallback;
+- ``SMLN (full) + projection`` (with ``--projection``): the full model followed by the body and layer collision
+  projection of :mod:`smln.projection` after every step;
 - ``skinning``: garments rigidly skinned, no dynamics;
 - ``L-BFGS solver``: :mod:`smln.solver`, the same per-step loss minimised per frame, no network;
 - ``physics (Newton VBD)``: ``bench/physics_reference.py`` with a ``--preroll`` lead-in from the T-pose (default
@@ -48,6 +50,7 @@ from smln.geometry import set_threads
 
 VARIANTS = (("SMLN (full)", "full"), ("no_repulsion_layer", "no_repulsion_layer"), ("baseline", "baseline"))
 PHYSICS = "physics (Newton VBD)"
+PROJECTED = "SMLN (full) + projection"
 FIRST = 2
 """First frame in the statistics (frames 0-1 are the skinned initial state of the network rollouts)."""
 
@@ -139,10 +142,12 @@ def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None
     }
 
 
-def run_method(kind: str, model, scene, frames: int) -> tuple[np.ndarray, list[dict[str, float]]]:
-    """Positions (T, V, 3) and per-frame metric dicts of one method (``fallback`` added as 0/1)."""
+def run_method(kind: str, model, scene, frames: int, projection: bool = False
+               ) -> tuple[np.ndarray, list[dict[str, float]]]:
+    """Positions (T, V, 3) and per-frame metric dicts of one method (``fallback`` added as 0/1); ``projection``:
+    the model's rollout uses the body and layer collision projection (:mod:`smln.projection`)."""
     xs, rows = [], []
-    for fr in method_frames(kind, model, scene, frames):
+    for fr in method_frames(kind, model, scene, frames, project_body=projection, project_layers=projection):
         xs.append(np.asarray(fr.garment_positions, np.float32))
         m = dict(fr.metrics)
         m["fallback"] = float(fr.fallback)
@@ -244,6 +249,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--preroll", type=int, default=40,
                    help="physics lead-in frames from the T-pose rest garments to frame 1 (0: start from skinning)")
     p.add_argument("--no-solver", action="store_true", help="leave out the L-BFGS solver (slow)")
+    p.add_argument("--projection", action="store_true",
+                   help=f"add a row: {PROJECTED}, the full model with the collision projection of smln.projection")
     p.add_argument("--json", help="write all figures as JSON")
     p.add_argument("--markdown", help="write the report (e.g. docs/BENCHMARKS.md); plots go to benchmarks/ beside it")
     p.add_argument("--note", default="", help="free text for the environment line (e.g. other load)")
@@ -290,12 +297,15 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"  {PHYSICS}: {src}", flush=True)
             results = {}
             methods: list[tuple[str, str, object]] = [(k, "model", m) for k, m in models.items()]
+            if a.projection and "SMLN (full)" in models:
+                methods.insert(1, (PROJECTED, "projected", models["SMLN (full)"]))
             methods.append(("skinning", "skinning", None))
             if not a.no_solver:
                 methods.append(("L-BFGS solver (no network)", "solver", None))
             for name, kind, model in methods:
                 t0 = time.time()
-                x, rows = run_method(kind, model, scene, n)
+                x, rows = run_method("model" if kind == "projected" else kind, model, scene, n,
+                                     projection=kind == "projected")
                 results[name] = stats(rows, x, x_phys)
                 r = results[name]
                 print(f"  {name:28s} {r['ms']:8.0f} ms/frame  L-Coll {r['l_coll']:.2f}%  H-Coll {r['h_coll']:.2f}% "
