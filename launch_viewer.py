@@ -25,6 +25,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--port", type=int, default=8080)
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--max-frames", type=int, default=300, help="frames computed per rollout at most")
+    p.add_argument("--precision", default="auto", choices=["auto", "float32", "bfloat16"],
+                   help="processor precision of the models (smln.model.precision); auto: bfloat16 on CPUs with "
+                        "native bfloat16 (AMX / AVX512-BF16), else float32")
     p.add_argument("--edge-length", type=float, default=None,
                    help="garment triangle size in m (default 0.035, the training resolution; 0.02 is finer and slower)")
     p.add_argument("--allow-remote", action="store_true",
@@ -87,7 +90,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.edge_length is not None and not 0.01 <= args.edge_length <= 0.1:
         print("launch_viewer: --edge-length must be between 0.01 and 0.1 m", file=sys.stderr)
         return 2
-    catalog = Catalog(args.checkpoints, device=args.device, max_frames=args.max_frames, edge_length=args.edge_length)
+    from smln.model.precision import native_bfloat16
+
+    precision = args.precision
+    if precision == "auto":
+        precision = "bfloat16" if args.device == "cpu" and native_bfloat16() else "float32"
+    catalog = Catalog(args.checkpoints, device=args.device, max_frames=args.max_frames, edge_length=args.edge_length,
+                      precision=precision)
+    print(f"model precision: {precision} processor")
     if catalog.checkpoints:
         found = ", ".join(f"{VARIANT_LABELS[v]} ({p})" for v, p in catalog.checkpoints.items())
         print(f"checkpoints: {found}")

@@ -176,8 +176,10 @@ class Catalog:
         max_frames: int = MAX_FRAMES,
         builder: tuple[Callable[[str, str], Cloth], list[tuple[str, str]]] | None = None,
         edge_length: float | None = None,
+        precision: str = "float32",
     ) -> None:
         self.checkpoint_dir = None if checkpoint_dir is None else Path(checkpoint_dir)
+        self.precision = precision  # the models' processor precision (smln.model.precision)
         self.uploads = uploads
         self.device = device
         self.max_frames = max_frames
@@ -271,7 +273,7 @@ class Catalog:
             raise ValueError(f"no checkpoint for variant {variant!r} under {self.checkpoint_dir}")
         proj = scenario.setting.projection
         return rollout(self.model(variant), scenario.cloth, scenario.sequence, scenario.body_faces,
-                       num_frames=scenario.num_frames, device=self.device, fallback=True,
+                       num_frames=scenario.num_frames, device=self.device, fallback=True, precision=self.precision,
                        project_body=proj in ("body", "body+layers"), project_layers=proj == "body+layers")
 
 

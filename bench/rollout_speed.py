@@ -15,6 +15,10 @@ Prints JSON (and writes it with ``--json OUT``), including the 1-minute load ave
 machine is shared: compare medians taken at similar load).
 
     python bench/rollout_speed.py [--json OUT] [--repeats R] [--threads 1 2] [--synthetic]
+                                   [--precision float32 bfloat16]
+
+With ``--precision bfloat16`` (default on CPUs with AMX / AVX512-BF16) the inference rows are repeated with the
+processor in bfloat16 (:mod:`smln.model.precision`) under ``inference_bfloat16``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from smln.geometry import set_threads, vertex_normals
 from smln.losses import BodyStep, ClothRest, layer_pairs, total_loss
 from smln.metrics import frame_metrics
 from smln.model import SMLN, SMLNConfig
+from smln.model.precision import native_bfloat16, with_processor_dtype
 from smln.rollout import rollout
 
 INFER_OUTFITS = ("tshirt_jacket", "tanktop_tshirt_jacket")  # 2 layers ~4.8k vertices, 3 layers ~6.4k
@@ -96,8 +101,8 @@ def _skinned(scene: Scene, n: int) -> torch.Tensor:
     return lbs(c.rest_vertices.float(), c.skin_indices, c.skin_weights, torch.as_tensor(scene.transforms[:n]).float())
 
 
-def inference(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
-    """ms/frame of real rollout frames, and per-stage medians on one frame's state."""
+def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32") -> dict[str, Any]:
+    """ms/frame of real rollout frames, and per-stage medians on one frame's state (processor in ``precision``)."""
     model.eval()
     frames = repeats + 4
     ms = []
@@ -105,7 +110,7 @@ def inference(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
     # an untrained model strains the cloth: thresholds off so every frame takes the normal path (a rejected
     # frame would compute its metrics twice); fallback only guards against non-finite positions
     for fr in rollout(model, scene.cloth, scene, scene.faces, num_frames=frames, fallback=True,
-                      max_distance=1e9, max_strain=1e9):
+                      max_distance=1e9, max_strain=1e9, precision=precision):
         t = time.perf_counter()
         if fr.index >= 3:  # frames 0, 1 are skinned; frame 2 warms up
             ms.append(1e3 * (t - t_prev))
@@ -116,6 +121,7 @@ def inference(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
     body = torch.as_tensor(scene.body).float()
     args = (xs[0], xs[1], body[1], body[2], xs[2])
     faces_np = np.asarray(scene.faces, dtype=np.int64)
+    model = with_processor_dtype(model, precision)
     with torch.no_grad():
         g = topo.build(*args)
         _, _, ex = model(g, topo)
@@ -130,6 +136,7 @@ def inference(model: SMLN, scene: Scene, repeats: int) -> dict[str, Any]:
     s = build + forward + metrics
     return {
         "scene": scene.name,
+        "precision": precision,
         "layers": scene.cloth.num_layers,
         "vertices": scene.cloth.num_vertices,
         "body_vertices": int(body.shape[1]),
@@ -181,7 +188,10 @@ def main() -> None:
     ap.add_argument("--synthetic", action="store_true", help="synthetic tubes on a cylinder instead of real outfits")
     ap.add_argument("--vertices", type=int, default=5000, help="--synthetic: inference outfit size (2 layers)")
     ap.add_argument("--train-vertices", type=int, default=1500, help="--synthetic: training outfit size")
+    ap.add_argument("--precision", nargs="+", choices=["float32", "bfloat16"],
+                    help="inference precisions (default: float32, plus bfloat16 on CPUs with native bfloat16)")
     args = ap.parse_args()
+    precisions = args.precision or (["float32", "bfloat16"] if native_bfloat16() else ["float32"])
     torch.manual_seed(0)
     cfg = SMLNConfig()
     frames = args.repeats + 4
@@ -202,6 +212,10 @@ def main() -> None:
             "inference": [inference(model, s, args.repeats) for s in infer],
             "training": training_step(SMLN(cfg), train, max(5, args.repeats // 2)),
         }
+        if "bfloat16" in precisions:
+            out[f"threads_{threads}"]["inference_bfloat16"] = [
+                inference(model, s, args.repeats, "bfloat16") for s in infer
+            ]
     out["load_after"] = round(os.getloadavg()[0], 2)
     text = json.dumps(out, indent=2)
     print(text)

@@ -57,9 +57,9 @@ def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
 
 
 def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu", project_body: bool = False,
-                  project_layers: bool = False) -> Iterator[RolloutFrame]:
+                  project_layers: bool = False, precision: str = "float32") -> Iterator[RolloutFrame]:
     """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model (optionally with the
-    collision projection of :mod:`smln.projection` after each step)."""
+    collision projection of :mod:`smln.projection` after each step, and the processor in ``precision``)."""
     if method == "skinning":
         return skinning_frames(scene, num_frames)
     if method == "solver":
@@ -69,7 +69,7 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
     from smln.rollout import rollout
 
     return rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=num_frames, device=device,
-                   fallback=True, project_body=project_body, project_layers=project_layers)
+                   fallback=True, project_body=project_body, project_layers=project_layers, precision=precision)
 
 
 def summarise(

@@ -28,6 +28,7 @@ from smln.cloth import Cloth
 from smln.geometry import PointTree, build_tree
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
+from smln.model.precision import with_processor_dtype
 from smln.model.smln import SMLN
 from smln.projection import project
 
@@ -79,6 +80,7 @@ def rollout(
     settle_steps: int = 1,
     project_body: bool = False,
     project_layers: bool = False,
+    precision: str = "float32",
 ) -> Iterator[RolloutFrame]:
     """Animate ``cloth`` on a body clip with ``model``.
 
@@ -107,6 +109,8 @@ def rollout(
         project_layers: after each network step, move each layer's free vertices out of the layer beneath.
             With either, the frame's metrics gain ``projected_fraction`` (% of vertices moved),
             ``projection_mean_mm`` / ``projection_max_mm`` (their displacement) and ``ms_projection``.
+        precision: "float32" or "bfloat16" (the processor in bfloat16, :mod:`smln.model.precision`; ~1.4x
+            faster network on CPUs with AMX / AVX512-BF16, slower elsewhere).
 
     Yields:
         :class:`RolloutFrame` for frames 0 .. num_frames-1.
@@ -122,7 +126,7 @@ def rollout(
     if n < 1:
         return
     dev = torch.device(device)
-    model = model.to(dev).eval()
+    model = with_processor_dtype(model.to(dev).eval(), precision)
     cloth_d = cloth.to(dev)
     topology = model.make_topology(cloth_d)
     rest = ClothRest.from_cloth(cloth)

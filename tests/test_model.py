@@ -199,3 +199,27 @@ def test_repulsion_cascade_lets_the_outer_layer_see_the_pushed_middle_layer():
 
     ref, _ = model.repulsion(x[:18], x[:18], vertex_normals(x[:18], faces[:16]), pairs2)
     assert torch.allclose(a2, ref, atol=1e-6)
+
+
+def test_bfloat16_processor_is_close_and_leaves_the_model_alone():
+    """The bfloat16 processor copy predicts nearly the same accelerations and shares/keeps the float32 weights."""
+    from smln.model.precision import with_processor_dtype
+
+    model = SMLN(SMLNConfig(latent_size=32)).eval()
+    assert with_processor_dtype(model, "float32") is model
+    low = with_processor_dtype(model, "bfloat16")
+    assert low.node_encoder is model.node_encoder and low.processor is not model.processor
+    assert next(model.processor.parameters()).dtype == torch.float32  # the original is untouched
+    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
+    topo = model.make_topology(cloth)
+    x = cloth.rest_vertices
+    body = torch.as_tensor(capsule_body(radius=0.1, height=1.2, max_edge=0.03)[0])
+    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004)
+    with torch.no_grad():
+        p32, _, _ = model(g, topo)
+        p16, _, _ = low(g, topo)
+    assert p16.dtype == torch.float32
+    err = float((p32 - p16).norm(dim=-1).mean() / p32.norm(dim=-1).mean())
+    assert 0.0 < err < 0.05  # bfloat16 rounding, not a different model
+    with pytest.raises(ValueError, match="precision"):
+        with_processor_dtype(model, "int8")
