@@ -56,12 +56,14 @@ class FrameMetrics:
         body_penetration: (V,) bool, vertex behind its nearest body vertex.
         layer_penetration: (V,) bool, vertex behind the layer directly beneath it.
         body_index: (V,) int64 nearest body vertex of each cloth vertex (reusable, e.g. for the graph).
+        body_distance: (V,) float32 distance to it, meters (inf where the positions are not finite).
     """
 
     values: dict[str, float]
     body_penetration: np.ndarray
     layer_penetration: np.ndarray
     body_index: np.ndarray
+    body_distance: np.ndarray
 
 
 def _np32(a: torch.Tensor | np.ndarray) -> np.ndarray:
@@ -171,7 +173,7 @@ def frame_metrics(
         keys += [f"l_coll_{k}_{k - 1}" for k in range(1, nl)]
         values = dict.fromkeys(keys, float("nan"))
         values.update(nan=1.0, exploded=1.0)
-        return FrameMetrics(values, no, no.copy(), np.zeros(nv, dtype=np.int64))
+        return FrameMetrics(values, no, no.copy(), np.zeros(nv, dtype=np.int64), np.full(nv, np.inf, np.float32))
 
     # body: H-Coll and the LayersNet collision loss. Coordinate-major (3, N) arrays and np.take: row gathers
     # and reductions over an axis of length 3 are several times slower in numpy.
@@ -250,7 +252,7 @@ def frame_metrics(
     exploded = values["strain_max"] > EXPLODED_STRAIN or float(bdist.max()) > EXPLODED_DISTANCE
     values["nan"] = 0.0
     values["exploded"] = float(exploded)
-    return FrameMetrics(values, body_pen, layer_pen, bidx)
+    return FrameMetrics(values, body_pen, layer_pen, bidx, bdist)
 
 
 MAX_KEYS = ("h_coll", "l_coll", "strain_max", "collision_loss", "layer_collision_loss", "nan", "exploded")

@@ -140,6 +140,7 @@ def rollout(
     body_d = body_v[:n].to(dev)
     zeros = np.zeros((cloth.num_vertices, 3), np.float32)
     trees: dict[int, PointTree] = {}
+    nearest: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> nearest body vertex of its garment vertices
 
     def body_tree(t: int) -> PointTree:
         """One KD-tree per body frame: the metrics of frame t and the graph of the step from t share it."""
@@ -150,6 +151,8 @@ def rollout(
 
     def make_frame(t: int, x: torch.Tensor, p: np.ndarray, a: np.ndarray, fb: bool, extra: dict) -> RolloutFrame:
         fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np, body_tree=body_tree(t))
+        nearest.clear()  # the next step starts from these positions: its body edges reuse the query
+        nearest[t] = (fm.body_index, fm.body_distance)
         metrics = dict(fm.values)
         metrics.update(extra)
         metrics["repulsion_mean"] = float(np.linalg.norm(a, axis=1).mean())
@@ -183,7 +186,8 @@ def rollout(
         for t in range(first, n):
             t0 = time.perf_counter()
             p, a, ex = model.step(
-                topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1)
+                topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1),
+                body_nearest=nearest.get(t - 1),
             )
             x_next = ex["x_next"]
             ms = 1e3 * (time.perf_counter() - t0)

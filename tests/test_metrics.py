@@ -106,7 +106,8 @@ def test_bend_strain_nan_and_sequence(body):
     m3 = frame_metrics(bad, b, rest, body_faces=bf)
     assert m3.values["nan"] == 1.0 and m3.values["exploded"] == 1.0 and math.isnan(m3.values["h_coll"])
     seq = sequence_metrics(
-        [m2, m3, FrameMetrics(dict(m2.values), m2.body_penetration, m2.layer_penetration, m2.body_index)]
+        [m2, m3, FrameMetrics(dict(m2.values), m2.body_penetration, m2.layer_penetration, m2.body_index,
+                         m2.body_distance)]
     )
     assert seq["num_frames"] == 3.0
     assert math.isclose(seq["bend"], m2.values["bend"], rel_tol=1e-6)

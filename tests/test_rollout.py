@@ -106,24 +106,31 @@ def test_settle_steps_reset_the_velocity_to_skinning(scene, settle_steps):
 
 
 def test_shared_body_tree_changes_nothing(scene, monkeypatch):
-    """The body KD-tree built once per frame (metrics of frame t, graph of the step from t) gives the same rollout
-    as building it in every step, and it is the tree of the right frame."""
+    """The body KD-tree built once per frame (metrics of frame t, graph of the step from t) and the nearest body
+    vertices the metrics found give the same rollout as querying in every step, and they belong to the right
+    frame."""
     cloth, seq, bf = scene
     step = SMLN.step
     seen = []
 
-    def spy(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next=None, body_tree=None):
-        seen.append((body_tree, body_cur.numpy().copy(), len(topology.build(x_prev, x_cur, body_cur, body_next,
-                                                                            pinned_next).body_receivers)))
-        return step(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree)
+    def spy(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next=None, body_tree=None,
+            body_nearest=None):
+        seen.append((body_tree, body_nearest, x_cur.numpy().copy(), body_cur.numpy().copy(),
+                     len(topology.build(x_prev, x_cur, body_cur, body_next, pinned_next).body_receivers)))
+        return step(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree,
+                    body_nearest=body_nearest)
 
     monkeypatch.setattr(SMLN, "step", spy)
     shared = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
-    assert len(seen) == 4 and all(n > 0 for _, _, n in seen)  # body edges exist, so the tree matters
-    for tree, body_cur, _ in seen:
-        assert tree is not None
+    assert len(seen) == 4 and all(n > 0 for *_, n in seen)  # body edges exist, so the tree matters
+    for tree, near, x_cur, body_cur, _ in seen:
+        assert tree is not None and near is not None
         np.testing.assert_array_equal(tree.points, body_cur.astype(np.float32))
-    monkeypatch.setattr(SMLN, "step", lambda self, *a, body_tree=None, **kw: step(self, *a, **kw))
+        d = np.linalg.norm(x_cur[:, None, :] - body_cur[None], axis=-1)  # brute force
+        np.testing.assert_array_equal(near[0], d.argmin(1))
+        np.testing.assert_allclose(near[1], d.min(1), atol=1e-6)
+    monkeypatch.setattr(SMLN, "step",
+                        lambda self, *a, body_tree=None, body_nearest=None, **kw: step(self, *a, **kw))
     own = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
     for f, g in zip(shared, own, strict=True):
         np.testing.assert_array_equal(f.garment_positions, g.garment_positions)

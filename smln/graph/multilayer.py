@@ -237,6 +237,7 @@ class GraphTopology:
         body_next: torch.Tensor,
         pinned_next: torch.Tensor | None = None,
         body_tree: PointTree | None = None,
+        body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> GraphInputs:
         """Features and proximity edges of one step.
 
@@ -249,6 +250,10 @@ class GraphTopology:
                 pinned vertices keep their velocity.
             body_tree: a prebuilt :func:`smln.geometry.build_tree` over ``body_cur`` (skips building it; e.g. the
                 tree the metrics of the previous frame used, see :func:`smln.rollout.rollout`).
+            body_nearest: the nearest body vertex (V,) int64 and its distance (V,) m of every ``x_cur`` vertex in
+                ``body_cur``, if already known (the metrics of the previous frame found them: ``FrameMetrics
+                .body_index`` / ``.body_distance``); skips the body query. Edges keep the pairs closer than the
+                body radius, as the query would.
 
         Returns:
             :class:`GraphInputs`. Only features and the virtual/body edges are computed here.
@@ -265,14 +270,22 @@ class GraphTopology:
 
         xn = x_cur.detach().cpu().numpy()
         # body world edges (Eq. 7-8): garment vertex <- nearest body vertex at t
-        b_np = None if body_tree is not None else body_cur.detach().cpu().numpy()
-        qb, rb = _nearest(xn, b_np, self.body_radius, tree=body_tree)
+        if body_nearest is not None:
+            near_idx, near_dist = body_nearest
+            if len(near_idx) != len(xn):
+                raise ValueError(f"body_nearest has {len(near_idx)} entries for {len(xn)} garment vertices")
+            qb = np.flatnonzero(np.asarray(near_dist) < self.body_radius).astype(np.int64)
+            rb = np.asarray(near_idx, dtype=np.int64)[qb]
+        else:
+            b_np = None if body_tree is not None else body_cur.detach().cpu().numpy()
+            qb, rb = _nearest(xn, b_np, self.body_radius, tree=body_tree)
         qb_t = torch.as_tensor(qb, device=dev)
         rb_t = torch.as_tensor(rb, device=dev)
         body_cur = body_cur.to(dev, torch.float32)
         body_next = body_next.to(dev, torch.float32)
-        d0 = x_cur[qb_t] - body_cur[rb_t]
-        d1 = x_cur[qb_t] - body_next[rb_t]
+        xq = x_cur.index_select(0, qb_t)  # index_select: one index_add in the backward, not an index_put
+        d0 = xq - body_cur.index_select(0, rb_t)
+        d1 = xq - body_next.index_select(0, rb_t)
         body_feat = torch.cat(
             [d0, d0.norm(dim=-1, keepdim=True), d1, d1.norm(dim=-1, keepdim=True),
              torch.full((qb.size, 1), dt, device=dev)], dim=-1)
@@ -281,8 +294,8 @@ class GraphTopology:
         ve, up = self._virtual_edges(xn)
         ve_t = torch.as_tensor(ve, device=dev)
         s, r = ve_t[0], ve_t[1]
-        dv = x_cur[s] - x_cur[r]
-        dh = x_hat[s] - x_hat[r]
+        dv = x_cur.index_select(0, s) - x_cur.index_select(0, r)
+        dh = x_hat.index_select(0, s) - x_hat.index_select(0, r)
         virt_feat = torch.cat(
             [dv, dv.norm(dim=-1, keepdim=True), dh, dh.norm(dim=-1, keepdim=True),
              torch.full((ve.shape[1], 1), dt, device=dev)], dim=-1)
@@ -291,7 +304,7 @@ class GraphTopology:
 
         # mesh edges (fine and anchor levels): dynamic columns + the precomputed static ones
         def edge_feat(g: torch.Tensor, static: torch.Tensor) -> torch.Tensor:
-            xs = x_cur[g[0]] - x_cur[g[1]]
+            xs = x_cur.index_select(0, g[0]) - x_cur.index_select(0, g[1])
             return torch.cat([xs, xs.norm(dim=-1, keepdim=True), static], dim=-1)
 
         me = self.mesh_edges

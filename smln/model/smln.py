@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -234,9 +235,11 @@ class SMLN(nn.Module):
         body_next: torch.Tensor,
         pinned_next: torch.Tensor | None = None,
         body_tree: PointTree | None = None,
+        body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
-        graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree)
+        graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree,
+                               body_nearest=body_nearest)
         p, a, extras = self(graph, topology)
         extras["graph"] = graph
         return p, a, extras
