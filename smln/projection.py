@@ -94,7 +94,9 @@ def project_out_of_body(
     sel = torch.nonzero(free).squeeze(1)
     for _ in range(iterations):  # passes (2), not a loop over vertices
         _, idx = tree.query(x.index_select(0, sel).detach().cpu().numpy())
-        x = _push(x, sel, body, normals, torch.from_numpy(idx).to(x.device), clearance)
+        ok = idx < tree.n  # non-finite rows have no nearest vertex: left as they are (the rollout flags them)
+        x = _push(x, sel[torch.from_numpy(ok).to(x.device)], body, normals, torch.from_numpy(idx[ok]).to(x.device),
+                  clearance)
     return x
 
 
@@ -146,9 +148,12 @@ def project(
         layers: also project each layer out of the one beneath.
 
     Returns:
-        :class:`ProjectionResult`.
+        :class:`ProjectionResult` (``x`` unchanged if it has a non-finite coordinate).
     """
     x0 = x
+    if not bool(torch.isfinite(x).all()):  # a diverged step: nothing to project, the rollout flags the frame
+        zero = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+        return ProjectionResult(x=x, moved=zero > 0, displacement=zero)
     if body is not None:
         if body_faces is None:
             raise ValueError("the body projection needs body_faces")

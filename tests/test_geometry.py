@@ -160,3 +160,16 @@ def test_point_tree_matches_brute_force_and_scipy_conventions():
     assert np.isinf(d0).all() and (i0 == 0).all()
     with pytest.raises(ValueError, match="points"):
         PointTree(np.zeros((5, 2)))
+
+
+def test_point_tree_non_finite_input():
+    """NaN/inf query rows have no neighbour (inf, n) instead of garbage indices; non-finite points are refused."""
+    ref = np.random.default_rng(0).uniform(size=(50, 3))
+    q = np.zeros((4, 3), np.float32)
+    q[1, 0], q[2, 2] = np.nan, np.inf
+    for k in (1, 2):
+        dist, idx = PointTree(ref).query(q, k=k)
+        assert np.isinf(dist[[1, 2]]).all() and (idx[[1, 2]] == 50).all()
+        assert np.isfinite(dist[[0, 3]]).all() and (idx[[0, 3]] < 50).all()
+    with pytest.raises(ValueError, match="NaN"):
+        PointTree(np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]))

@@ -90,3 +90,21 @@ def test_rollout_with_projection_reports_it_and_removes_body_penetration():
         assert free_pen.mean() < 0.02, f.index
         assert f.metrics["h_coll"] < plain[f.index].metrics["h_coll"]
     assert "projected_fraction" not in plain[3].metrics
+
+
+def test_projection_leaves_non_finite_vertices_for_the_rollout_to_flag():
+    body, faces = _sphere()
+    x = torch.stack([body[0] * 0.95, torch.tensor([float("nan"), 0.0, 0.0])])
+    y = project_out_of_body(x, body, faces, torch.tensor([True, True]))
+    assert torch.isnan(y[1]).any() and torch.isfinite(y[0]).all()
+    assert float(y[0].norm()) > float(x[0].norm())  # the finite one was still pushed out
+
+
+def test_project_skips_a_diverged_frame():
+    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=4, pin_top=False)
+    rest = ClothRest.from_cloth(cloth)
+    x = cloth.rest_vertices.clone()
+    x[3, 1] = float("inf")
+    body, faces = _sphere()
+    res = project(x, rest, body, faces, layers=True)
+    assert res.x is x and not bool(res.moved.any())

@@ -54,6 +54,8 @@ class PointTree:
         p = np.ascontiguousarray(_np(points), dtype=np.float32)
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"PointTree needs (N, 3) points, got shape {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("PointTree: the points contain NaN or infinite coordinates")
         self.points = p
         self.n = int(p.shape[0])
         self._tree = _KDTree(p, leafsize=LEAF_SIZE) if self.n else None
@@ -71,9 +73,16 @@ class PointTree:
         Returns:
             dist: float32, (M,) for k = 1 else (M, k), meters, ascending; idx: int64 of the same shape.
             Missing neighbours (fewer than k points, or none within the bound) have dist = inf and idx = n,
-            as in scipy.
+            as in scipy; so do query points with a non-finite coordinate (they have no neighbour).
         """
         q = np.ascontiguousarray(_np(query), dtype=np.float32).reshape(-1, 3)
+        finite = np.isfinite(q).all(axis=1)
+        if not finite.all():  # pykdtree would answer garbage indices for them
+            dist = np.full((len(q), k), np.inf, dtype=np.float32)
+            idx = np.full((len(q), k), self.n, dtype=np.int64)
+            d_ok, i_ok = self.query(q[finite], k=k, distance_upper_bound=distance_upper_bound)
+            dist[finite], idx[finite] = d_ok.reshape(-1, k), i_ok.reshape(-1, k)
+            return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
         m = q.shape[0]
         kk = min(k, self.n)
         if kk == 0 or m == 0:
