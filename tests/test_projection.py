@@ -9,7 +9,14 @@ from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube_outf
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
 from smln.model import SMLN, SMLNConfig
-from smln.projection import BODY_CLEARANCE, LAYER_CLEARANCE, project, project_out_of_body, project_out_of_layers
+from smln.projection import (
+    BODY_CLEARANCE,
+    BODY_MAX_DEPTH,
+    LAYER_CLEARANCE,
+    project,
+    project_out_of_body,
+    project_out_of_layers,
+)
 from smln.rollout import rollout
 
 
@@ -21,10 +28,14 @@ def _sphere(radius: float = 0.2) -> tuple[torch.Tensor, torch.Tensor]:
 def test_body_projection_moves_inside_points_to_the_clearance_and_leaves_others():
     body, faces = _sphere()
     normals = vertex_normals(body, faces)
-    # three points on the directions of body vertices 0-2: 1 cm inside, 1 cm outside, 1 cm inside but not free
-    x = torch.stack([body[0] * (1 - 0.01 / 0.2), body[1] * (1 + 0.01 / 0.2), body[2] * (1 - 0.01 / 0.2)])
-    free = torch.tensor([True, True, False])
+    # points on the directions of body vertices 0-3: 1 cm inside, 1 cm outside, 1 cm inside but not free,
+    # 3 cm inside (deeper than BODY_MAX_DEPTH: the nearest-vertex test is not trusted there)
+    x = torch.stack([body[0] * (1 - 0.01 / 0.2), body[1] * (1 + 0.01 / 0.2), body[2] * (1 - 0.01 / 0.2),
+                     body[3] * (1 - 0.03 / 0.2)])
+    free = torch.tensor([True, True, False, True])
+    assert BODY_MAX_DEPTH < 0.03
     y = project_out_of_body(x, body, faces, free)
+    torch.testing.assert_close(y[3], x[3])
     d0 = float(((y[0] - body[0]) * normals[0]).sum())
     assert abs(d0 - BODY_CLEARANCE) < 1e-4  # moved along the vertex normal to the clearance
     torch.testing.assert_close(y[1], x[1])  # outside: untouched
