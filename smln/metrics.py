@@ -35,6 +35,9 @@ import numpy as np
 import torch
 
 from smln.geometry import PointTree, build_tree
+from smln.geometry.mesh_np import dot3 as _dot3
+from smln.geometry.mesh_np import face_cross as _face_cross
+from smln.geometry.mesh_np import normal_sums_at as _normal_sums_at
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -76,50 +79,6 @@ def _np_index(a: torch.Tensor | np.ndarray) -> np.ndarray:
     if isinstance(a, torch.Tensor):
         a = a.detach().cpu().numpy()
     return np.asarray(a, dtype=np.int64)
-
-
-def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot product of coordinate-major (3, N) arrays."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _face_cross(xt: np.ndarray, ft: np.ndarray) -> np.ndarray:
-    """(x1 - x0) x (x2 - x0) of each face (norm 2 * area), coordinate-major.
-
-    Args:
-        xt: (3, V) positions; ft: (3, F) int64 face corners.
-
-    Returns:
-        (3, F), dtype of ``xt``.
-    """
-    p0 = np.take(xt, ft[0], axis=1)
-    a = np.take(xt, ft[1], axis=1) - p0
-    b = np.take(xt, ft[2], axis=1) - p0
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _normal_sums_at(
-    xt: np.ndarray, ft: np.ndarray, idx: np.ndarray, cross: np.ndarray | None = None
-) -> np.ndarray:
-    """Unnormalised area-weighted vertex normals of the vertices ``idx``: (3, N) float64.
-
-    The sum of the cross products (norm 2 * area) of the faces around each vertex, as in
-    :func:`smln.geometry.vertex_normals`. Only the faces touching a vertex of ``idx`` are accumulated: those
-    vertices get their full sums and nothing else is read.
-
-    Args:
-        xt: (3, V) positions; ft: (3, F) int64 face corners; idx: (N,) vertex indices;
-        cross: (3, F) the faces' cross products if already computed.
-    """
-    n = xt.shape[1]
-    need = np.zeros(n, dtype=bool)
-    need[idx] = True
-    sel = np.take(need, ft[0]) | np.take(need, ft[1]) | np.take(need, ft[2])
-    fs = np.compress(sel, ft, axis=1)
-    c = _face_cross(xt, fs) if cross is None else np.compress(sel, cross, axis=1)
-    corners = fs.ravel()
-    acc = np.stack([np.bincount(corners, weights=np.tile(c[k], 3), minlength=n) for k in range(3)])
-    return np.take(acc, idx, axis=1)
 
 
 def _layersnet_loss(d: np.ndarray, dist: np.ndarray) -> float:

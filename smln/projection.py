@@ -24,9 +24,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
-from smln.geometry import PointTree, build_tree, coordinate_major, dot_cm, vertex_normals, vertex_normals_cm
+from smln.geometry import PointTree, build_tree, coordinate_major, dot_cm, vertex_normals_cm
+from smln.geometry.mesh_np import vertex_normals_at
 from smln.losses.rest import ClothRest
 
 BODY_CLEARANCE = 1e-3
@@ -60,20 +62,21 @@ class ProjectionResult:
     displacement: torch.Tensor
 
 
-def _push(x: torch.Tensor, sel: torch.Tensor, ref: torch.Tensor, ref_normals: torch.Tensor, idx: torch.Tensor,
-          clearance: float, max_depth: float = float("inf")) -> torch.Tensor:
-    """Move the rows ``sel`` of ``x`` along the normals of their partners ``idx`` to ``clearance`` if closer.
+def _push(x: torch.Tensor, sel: torch.Tensor, ref_at: torch.Tensor, normals_at: torch.Tensor, clearance: float,
+          max_depth: float = float("inf")) -> tuple[torch.Tensor, torch.Tensor]:
+    """Move the rows ``sel`` of ``x`` along their partners' normals to ``clearance`` if closer.
 
     Args:
-        x: (V, 3) positions (returned moved, a new tensor); sel: (N,) int64 rows of x; ref, ref_normals: (M, 3)
-        reference vertices and unit normals; idx: (N,) int64 partner of each selected row in ``ref``;
-        max_depth: rows deeper than this behind the partner's plane are not moved, meters.
+        x: (V, 3) positions (returned moved, a new tensor); sel: (N,) int64 rows of x; ref_at, normals_at: (N, 3)
+        each selected row's partner vertex and its unit normal; max_depth: rows deeper than this behind the
+        partner's plane are not moved, meters.
+
+    Returns:
+        the moved positions, and (N,) bool: which selected rows moved.
     """
-    xs = x.index_select(0, sel)
-    n = ref_normals.index_select(0, idx)
-    d = dot_cm(coordinate_major(xs - ref.index_select(0, idx)), coordinate_major(n))
+    d = dot_cm(coordinate_major(x.index_select(0, sel) - ref_at), coordinate_major(normals_at))
     push = torch.where(d > -max_depth, torch.clamp(clearance - d, min=0.0), torch.zeros_like(d))
-    return x.index_add(0, sel, push.unsqueeze(1) * n)
+    return x.index_add(0, sel, push.unsqueeze(1) * normals_at), push > 0
 
 
 def project_out_of_body(
@@ -100,13 +103,20 @@ def project_out_of_body(
         (V, 3) projected positions (a new tensor; ``x`` is not modified).
     """
     tree = tree if tree is not None else build_tree(body)
-    normals = vertex_normals(body, body_faces.to(body.device))
+    body_t = np.ascontiguousarray(body.detach().cpu().numpy().T)  # coordinate-major numpy, for the normals
+    faces_t = np.ascontiguousarray(np.asarray(body_faces.cpu() if isinstance(body_faces, torch.Tensor) else body_faces,
+                                              dtype=np.int64).T)
     sel = torch.nonzero(free).squeeze(1)
-    for _ in range(iterations):  # passes (2), not a loop over vertices
+    for _ in range(iterations):  # passes (2), not a loop over vertices; the second one re-tests the moved rows
+        if sel.numel() == 0:
+            break
         _, idx = tree.query(x.index_select(0, sel).detach().cpu().numpy())
-        ok = idx < tree.n  # non-finite rows have no nearest vertex: left as they are (the rollout flags them)
-        x = _push(x, sel[torch.from_numpy(ok).to(x.device)], body, normals, torch.from_numpy(idx[ok]).to(x.device),
-                  clearance, max_depth)
+        ok = idx < tree.n  # non-finite rows have no nearest vertex: left alone (the rollout flags them)
+        sel, idx = sel[torch.from_numpy(ok).to(x.device)], idx[ok]
+        normals = torch.from_numpy(vertex_normals_at(body_t, faces_t, idx).T).to(x.device, x.dtype)
+        near = torch.from_numpy(idx).to(x.device)
+        x, moved = _push(x, sel, body.index_select(0, near), normals, clearance, max_depth)
+        sel = sel[moved]
     return x
 
 
@@ -136,7 +146,7 @@ def project_out_of_layers(
         if not bool(close.any()):
             continue
         partner = torch.from_numpy(idx).to(x.device)[close] + inner.start
-        x = _push(x, sel[close], x, normals, partner, clearance)
+        x, _ = _push(x, sel[close], x.index_select(0, partner), normals.index_select(0, partner), clearance)
     return x
 
 
