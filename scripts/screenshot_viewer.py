@@ -3,7 +3,8 @@
     python scripts/screenshot_viewer.py --outfit leggings_skirt --clip 05_11_dance_sideways_steps_pirouette \
         --frame 68 --out docs/screenshots/viewer_trained.png
 
-Starts :class:`app.server.ViewerApp` on a free port with ``checkpoints/`` and all variants enabled, waits until
+Starts :class:`app.server.ViewerApp` on a free port with ``checkpoints/`` and the ``--variants`` (default: all) and
+``--projection`` setting, waits until
 every variant has computed ``--frame`` + 1 frames, pauses there and saves a 1400x900 screenshot. Needs
 ``/usr/bin/chromium`` (``apt-get install chromium``) and ``pip install playwright`` (never ``playwright install``).
 """
@@ -35,6 +36,9 @@ def main() -> None:
     p.add_argument("--frame", type=int, default=68)
     p.add_argument("--checkpoints", default="checkpoints")
     p.add_argument("--out", default="docs/screenshots/viewer_trained.png")
+    p.add_argument("--projection", default="off", choices=["off", "body", "body+layers"],
+                   help="the viewer's collision projection setting (smln.projection)")
+    p.add_argument("--variants", nargs="+", default=["full", "no_repulsion_layer", "baseline", "skinning"])
     a = p.parse_args()
 
     from playwright.sync_api import sync_playwright
@@ -42,9 +46,8 @@ def main() -> None:
     from app.server import ViewerApp
     from app.sources import Setting
 
-    variants = ["full", "no_repulsion_layer", "baseline", "skinning"]
     app = ViewerApp(port=free_port(), checkpoint_dir=a.checkpoints, max_frames=a.frame + 22,
-                    setting=Setting(a.outfit, a.clip, a.shape), variants=variants)
+                    setting=Setting(a.outfit, a.clip, a.shape, a.projection), variants=a.variants)
     try:
         if not app.worker.wait_frames(a.frame + 1, timeout=600):
             raise SystemExit("the variants did not compute the frame in 10 minutes")
