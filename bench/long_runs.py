@@ -1,7 +1,7 @@
 """Long runs: every shipped test clip x every outfit, full length, with a checkpoint (issue 9).
 
     nice -n 19 python bench/long_runs.py [--checkpoint checkpoints/full] [--outfits ...] [--clips ...]
-                                         [--json OUT.json] [--markdown OUT.md]
+                                         [--projection] [--precision bfloat16] [--json OUT.json] [--markdown OUT.md]
 
 Each rollout runs with ``fallback=True`` (a diverged frame is replaced by skinning and flagged) and is summarised
 as one row: frames, fallback frames, NaN frames, the largest distance of any garment vertex from the body
@@ -60,8 +60,10 @@ class LongRunResult:
 
 
 def long_run(model: torch.nn.Module, outfit: str, clip: str, shape: str = "female_average",
-             edge_length: float = 0.02, num_frames: int | None = None, device: str = "cpu") -> LongRunResult:
-    """Roll ``model`` out over ``clip`` (full length unless ``num_frames``) with ``outfit`` and summarise it."""
+             edge_length: float = 0.02, num_frames: int | None = None, device: str = "cpu", projection: bool = False,
+             precision: str = "float32") -> LongRunResult:
+    """Roll ``model`` out over ``clip`` (full length unless ``num_frames``) with ``outfit`` and summarise it
+    (``projection``: with the body and layer collision projection; ``precision``: the processor's)."""
     from smln.data_sampling import make_scene
     from smln.rollout import rollout
 
@@ -74,7 +76,8 @@ def long_run(model: torch.nn.Module, outfit: str, clip: str, shape: str = "femal
     body_dist = skin_dist = 0.0
     fallback_ok = True
     t0 = time.perf_counter()
-    for fr in rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=n, device=device, fallback=True):
+    for fr in rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=n, device=device, fallback=True,
+                      project_body=projection, project_layers=projection, precision=precision):
         x = fr.garment_positions
         finite = bool(np.isfinite(x).all())
         nan += int(not finite)
@@ -140,6 +143,8 @@ def main(argv: list[str] | None = None) -> list[LongRunResult]:
     p.add_argument("--frames", type=int, help="frames per clip (default: the whole clip)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu")
+    p.add_argument("--projection", action="store_true", help="with the body and layer collision projection")
+    p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"])
     p.add_argument("--json", help="write the rows as JSON")
     p.add_argument("--markdown", help="write the table as markdown")
     a = p.parse_args(argv)
@@ -148,7 +153,7 @@ def main(argv: list[str] | None = None) -> list[LongRunResult]:
     results = []
     for clip in a.clips:
         for outfit in a.outfits:
-            r = long_run(model, outfit, clip, a.shape, a.edge_length, a.frames, a.device)
+            r = long_run(model, outfit, clip, a.shape, a.edge_length, a.frames, a.device, a.projection, a.precision)
             results.append(r)
             print(f"{outfit:26s} {clip:40s} {r.frames:4d} frames, {r.fallback_frames:3d} fallback, "
                   f"body {r.max_body_distance:.3f} m, L-Coll {r.l_coll_mean:5.1f} %, "
