@@ -206,6 +206,17 @@ def make_report(results: list[RunResult], outfits: list[str], motions: list[str]
     return "\n".join(text)
 
 
+def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
+    """The options of a model's rollout shared by ``smln eval`` and ``smln rollout``: ``--project-body``,
+    ``--project-layers`` (:mod:`smln.projection`) and ``--precision`` (:mod:`smln.model.precision`)."""
+    p.add_argument("--project-body", action="store_true",
+                   help="after each network step, move body-penetrating vertices back out (smln.projection)")
+    p.add_argument("--project-layers", action="store_true",
+                   help="after each network step, move each layer out of the one beneath (smln.projection)")
+    p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"],
+                   help="processor precision (bfloat16: faster on CPUs with AMX / AVX512-BF16; smln.model.precision)")
+
+
 def cli_main(args: argparse.Namespace) -> None:
     main(args.argv)
 
@@ -223,12 +234,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     p.add_argument("--no-skinning", action="store_true", help="leave out the skinning-only row")
     p.add_argument("--solver", action="store_true", help="add the reference L-BFGS solver (slow)")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--project-body", action="store_true",
-                   help="models' rollouts move body-penetrating vertices back out after each step (smln.projection)")
-    p.add_argument("--project-layers", action="store_true",
-                   help="models' rollouts move each layer out of the one beneath after each step")
-    p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"],
-                   help="the models' processor precision (bfloat16: faster on CPUs with AMX / AVX512-BF16)")
+    add_model_rollout_options(p)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="write all results as JSON")
     p.add_argument("--markdown", help="write the tables as markdown")

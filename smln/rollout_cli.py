@@ -16,7 +16,7 @@ def main(args: argparse.Namespace) -> None:
 
 def run(argv: list[str] | None = None) -> Path:
     from smln.data_sampling import make_scene
-    from smln.evaluate import method_frames
+    from smln.evaluate import add_model_rollout_options, method_frames
     from smln.export import save_rollout_npz
 
     p = argparse.ArgumentParser(prog="smln rollout", description=__doc__)
@@ -31,12 +31,7 @@ def run(argv: list[str] | None = None) -> Path:
     p.add_argument("--edge-length", type=float, default=0.02)
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--project-body", action="store_true",
-                   help="after each network step, move body-penetrating vertices back out (smln.projection)")
-    p.add_argument("--project-layers", action="store_true",
-                   help="after each network step, move each layer out of the one beneath (smln.projection)")
-    p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"],
-                   help="processor precision (bfloat16: faster on CPUs with AMX / AVX512-BF16; smln.model.precision)")
+    add_model_rollout_options(p)
     p.add_argument("--out", required=True, help="output .npz")
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
     a = p.parse_args(argv)
