@@ -35,9 +35,7 @@ import numpy as np
 import torch
 
 from smln.geometry import PointTree, build_tree
-from smln.geometry.mesh_np import dot3 as _dot3
-from smln.geometry.mesh_np import face_cross as _face_cross
-from smln.geometry.mesh_np import normal_sums_at as _normal_sums_at
+from smln.geometry.mesh_np import dot3, face_cross, normal_sums_at, vertex_normals_at
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -143,11 +141,10 @@ def frame_metrics(
     tree = body_tree if body_tree is not None else build_tree(b)
     bdist, bidx = tree.query(x, k=1)
     if body_normals is None:
-        a = _normal_sums_at(bt, np.ascontiguousarray(_np_index(body_faces).T), bidx)
-        bn = (a / np.sqrt(_dot3(a, a) + 1e-12)).astype(np.float32)  # as smln.geometry.vertex_normals
+        bn = vertex_normals_at(bt, np.ascontiguousarray(_np_index(body_faces).T), bidx)
     else:
         bn = np.take(_np32(body_normals), bidx, axis=0).T
-    d_body = _dot3(xt - np.take(bt, bidx, axis=1), bn)
+    d_body = dot3(xt - np.take(bt, bidx, axis=1), bn)
     body_pen = d_body < 0.0
 
     values: dict[str, float] = {
@@ -158,7 +155,7 @@ def frame_metrics(
     # cloth face cross products (2 area * normal): face normals for bend, vertex normals for the layers
     topo = rest.numpy_topology
     ft = topo.faces
-    fc = _face_cross(xt, ft)
+    fc = face_cross(xt, ft)
 
     # layers: per adjacent pair, and outermost against the union of the inner layers
     layer_pen = no.copy()
@@ -171,12 +168,12 @@ def frame_metrics(
         for q, r in pairs:
             dist, idx = trees[r].query(x[sl[q]], k=1)
             found.append((dist, idx + sl[r].start))
-        a = _normal_sums_at(xt, ft, np.concatenate([g for _, g in found]), cross=fc)
-        cn = (a / (np.sqrt(_dot3(a, a)) + 1e-12)).astype(np.float32)
+        a = normal_sums_at(xt, ft, np.concatenate([g for _, g in found]), cross=fc)
+        cn = (a / (np.sqrt(dot3(a, a)) + 1e-12)).astype(np.float32)
         start = 0
         best_d = best_signed = np.zeros(0)
         for (q, r), (dist, g) in zip(pairs, found, strict=True):
-            d = _dot3(xt[:, sl[q]] - np.take(xt, g, axis=1), cn[:, start : start + len(g)])
+            d = dot3(xt[:, sl[q]] - np.take(xt, g, axis=1), cn[:, start : start + len(g)])
             start += len(g)
             if r == q - 1:
                 layer_pen[sl[q]] = d < 0.0
@@ -196,15 +193,15 @@ def frame_metrics(
     # bend (PBNS): 1 - cos between adjacent face normals
     hf = topo.hinge_faces
     if hf.shape[1]:
-        fn = fc / (np.sqrt(_dot3(fc, fc)) + 1e-12)
-        values["bend"] = float(1.0 - _dot3(np.take(fn, hf[0], axis=1), np.take(fn, hf[1], axis=1)).mean())
+        fn = fc / (np.sqrt(dot3(fc, fc)) + 1e-12)
+        values["bend"] = float(1.0 - dot3(np.take(fn, hf[0], axis=1), np.take(fn, hf[1], axis=1)).mean())
     else:
         values["bend"] = 0.0
 
     # edge strain
     et = topo.edges
     de = np.take(xt, et[1], axis=1) - np.take(xt, et[0], axis=1)
-    strain = np.abs(np.sqrt(_dot3(de, de)) / topo.rest_length - 1.0)
+    strain = np.abs(np.sqrt(dot3(de, de)) / topo.rest_length - 1.0)
     values["strain_mean"] = float(strain.mean())
     values["strain_max"] = float(strain.max())
 

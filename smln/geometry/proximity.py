@@ -8,9 +8,8 @@ Why pykdtree rather than ``scipy.spatial.cKDTree``: the nearest-vertex queries (
 the 12k-vertex body, each layer against the one beneath) are on the hot path of every training step, rollout
 frame and metric evaluation. pykdtree works in float32 and answers them about 1.7x faster on one thread
 (5,000 queries against 12.8k body vertices: 2.8 vs 4.8 ms CPU time; building the tree: 1.0 vs 1.7 ms, both at
-leaf size 16), and
-splits a query over OpenMP threads. Their count is set once per process with :func:`set_threads` (torch's
-threads and the OpenMP pools together), not per call.
+leaf size 16). Its queries run on OpenMP threads (two barely beat one here); their count is set once per
+process with :func:`set_threads` (torch's threads and the OpenMP pools together), not per call.
 """
 
 from __future__ import annotations
