@@ -23,6 +23,8 @@ from smln.model.smln import SMLN, SMLNConfig
 
 FORMAT = "smln-checkpoint"
 VERSION = 1
+LEGACY_CONFIG = {"body_normal_features": False}
+"""Config values of cards written before the field existed (the field's default differs from what they ran)."""
 
 
 class CheckpointError(RuntimeError):
@@ -135,7 +137,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             "the weights were modified or belong to another card"
         )
     try:
-        config = SMLNConfig.from_dict(card["config"])
+        config = SMLNConfig.from_dict({**LEGACY_CONFIG, **card["config"]})
         model = SMLN(config)  # the card is not covered by the sha256: a hand-edited config fails here
     except (TypeError, ValueError, RuntimeError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__

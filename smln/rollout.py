@@ -25,7 +25,7 @@ import torch
 
 from smln.body import lbs
 from smln.cloth import Cloth
-from smln.geometry import PointTree, build_tree
+from smln.geometry import PointTree, build_tree, vertex_normals
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
 from smln.model.precision import with_processor_dtype
@@ -185,9 +185,10 @@ def rollout(
     with torch.no_grad():
         for t in range(first, n):
             t0 = time.perf_counter()
+            normals = vertex_normals(body_d[t], faces_d) if topology.body_normals else None
             p, a, ex = model.step(
                 topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1),
-                body_nearest=nearest.get(t - 1),
+                body_nearest=nearest.get(t - 1), body_normals_next=normals,
             )
             x_next = ex["x_next"]
             ms = 1e3 * (time.perf_counter() - t0)

@@ -32,7 +32,8 @@ import torch
 
 from smln.body import BODY_SHAPES
 from smln.data_sampling import Scene, SceneCache
-from smln.geometry import set_threads
+from smln.geometry import set_threads, vertex_normals
+from smln.graph import LEGACY_BODY_EDGE_DIM
 from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
@@ -197,10 +198,10 @@ class Trainer:
             eps = torch.randn(x_cur.shape, generator=self.noise) * self.cfg.noise_std
             eps[scene.cloth.pinned] = 0
             x_prev, x_cur = x_prev + eps, x_cur + eps
-        graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next)
+        body = BodyStep.from_vertices(body_cur, body_next, scene.body.faces)
+        graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body.normals_next)
         p, a, extras = self.net(graph, topo)
         x_next = extras["x_next"]
-        body = BodyStep.from_vertices(body_cur, body_next, scene.body.faces)
         loss, terms = total_loss(x_prev, x_cur, x_next, body, scene.rest, self.weights)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -262,15 +263,37 @@ class Trainer:
         from smln.checkpoint import load_checkpoint
 
         model, card = load_checkpoint(path)
-        if model.config.to_dict() != self.model.config.to_dict():
+        old_cfg, new_cfg = model.config.to_dict(), self.model.config.to_dict()
+        if old_cfg != new_cfg and old_cfg != {**new_cfg, "body_normal_features": False}:
             raise ValueError(f"{path}: architecture differs from this run's model config")
-        self.model.load_state_dict(model.state_dict())
-        self.ema.load_state_dict(model.state_dict())
+        if old_cfg != new_cfg:  # a checkpoint from before the body-normal edge features: widen it, same function
+            from smln.model.migrate import widen_body_edges
+
+            widen_body_edges(model, self.model, self.body_normal_samples())
+        else:
+            self.model.load_state_dict(model.state_dict())
+        self.ema.load_state_dict(self.model.state_dict())
         tr = card.get("training", {})
         self.step = int(tr.get("steps", 0))
         self.parent = {"path": str(path), "steps": self.step, "wall_time_s": tr.get("wall_time_s"),
                        "hardware": tr.get("hardware"), "loss_weights": card.get("loss_weights"),
                        "initialised_from": card.get("initialised_from")}
+
+    def body_normal_samples(self, frame_stride: int = 15) -> torch.Tensor:
+        """(M, 4) body-normal columns of the body edges of skinned training states (every ``frame_stride``-th
+        frame of every training clip, one outfit per clip in turn, all shapes in turn): the statistics that
+        :func:`smln.model.migrate.widen_body_edges` gives the normaliser's new columns."""
+        s = self.sampler
+        rows = []
+        for i, motion in enumerate(s.motions):
+            scene = self.cache.get(s.outfits[i % len(s.outfits)], s.shapes[i % len(s.shapes)], motion)
+            topo, faces = scene.topology, scene.body.faces
+            for t in range(1, scene.num_frames - 1, frame_stride):
+                body_next = scene.body.vertices[t + 1]
+                g = topo.build(scene.skinned[t - 1], scene.skinned[t], scene.body.vertices[t], body_next,
+                               scene.skinned[t + 1], body_normals_next=vertex_normals(body_next, faces))
+                rows.append(g.body_features[:, LEGACY_BODY_EDGE_DIM:])
+        return torch.cat(rows)
 
     # -- validation ------------------------------------------------------------------------------------------
     def validate(self) -> dict[str, float]:

@@ -100,3 +100,20 @@ def test_bad_card_and_nan_rejected(tmp_path):
     card_path.write_text(json.dumps(card))
     with pytest.raises(CheckpointError, match="NaN"):
         load_checkpoint(tmp_path / "a")
+
+
+def test_card_without_body_normal_field_loads_the_legacy_layout(tmp_path):
+    """Cards written before ``body_normal_features`` existed ran 9-column body edges: they load as such (not with
+    the new default), and a card that says True needs the 13-column body encoder."""
+    torch.manual_seed(0)
+    legacy = SMLN(SMLNConfig(**CFG, body_normal_features=False))
+    card_path = save_checkpoint(tmp_path / "old", legacy)
+    card = json.loads(card_path.read_text())
+    del card["config"]["body_normal_features"]
+    card_path.write_text(json.dumps(card))
+    m, _ = load_checkpoint(tmp_path / "old")
+    assert m.config.body_normal_features is False and m.body_encoder[0].in_features == 9
+    card["config"]["body_normal_features"] = True
+    card_path.write_text(json.dumps(card))
+    with pytest.raises(CheckpointError, match="body_encoder"):
+        load_checkpoint(tmp_path / "old")

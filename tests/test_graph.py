@@ -5,7 +5,8 @@ import pytest
 import torch
 from scipy.sparse import coo_matrix, csgraph
 
-from smln.graph import NODE_DIM, GraphTopology, anchor_hierarchy, mesh_edges
+from smln.geometry import vertex_normals
+from smln.graph import LEGACY_BODY_EDGE_DIM, NODE_DIM, GraphTopology, anchor_hierarchy, mesh_edges
 from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube, tube_outfit
 
 
@@ -16,7 +17,7 @@ def scene():
     tr = sway_motion(4)
     body = rigid_lbs(torch.as_tensor(bv), tr)
     xs = rigid_lbs(cloth.rest_vertices, tr)
-    return cloth, body, xs
+    return cloth, body, xs, vertex_normals(body, torch.as_tensor(bf))
 
 
 def test_mesh_edge_count_exact():
@@ -30,7 +31,7 @@ def test_mesh_edge_count_exact():
 
 
 def test_topology_counts(scene):
-    cloth, _, _ = scene
+    cloth, _, _, _ = scene
     topo = GraphTopology.from_cloth(cloth)
     per_layer = 24 * 10 + 2 * 24 * 9
     assert topo.mesh_edges.shape == (2, 2 * 2 * per_layer)
@@ -115,9 +116,9 @@ def test_hierarchy_two_hop_option_halves():
 
 
 def test_virtual_edges_link_nearest_pairs(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     topo = GraphTopology.from_cloth(cloth, virtual_radius=0.05)
-    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2])
+    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     n = 24 * 10
     s, r = g.virtual_edges
     # every vertex of both layers receives exactly one virtual edge from the other layer
@@ -136,19 +137,19 @@ def test_virtual_edges_link_nearest_pairs(scene):
 
 
 def test_virtual_radius_cuts(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     topo = GraphTopology.from_cloth(cloth, virtual_radius=0.003)
-    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2])
+    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     assert g.virtual_edges.shape[1] == 0 and g.repulsion_pairs.shape == (2, 0)
 
 
 def test_body_edges_and_features(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     topo = GraphTopology.from_cloth(cloth, body_radius=0.03)
-    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2])
+    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     assert g.node_features.shape == (cloth.num_vertices, NODE_DIM)
     assert g.mesh_features.shape == (topo.mesh_edges.shape[1], 12)
-    assert g.body_features.shape[1] == 9
+    assert g.body_features.shape[1] == 13
     # inner tube (2 cm off the body) has body edges, outer one (2.6 cm) mostly too; all within the radius
     assert g.body_receivers.numel() > 0
     assert torch.all(g.body_features[:, 3] <= 0.03 + 1e-6)
@@ -156,12 +157,43 @@ def test_body_edges_and_features(scene):
     assert torch.all(torch.isfinite(g.node_features))
 
 
+def test_body_edge_normal_columns(scene):
+    """The body normal columns: unit outward normals of the capsule, and the signed distance along them is the
+    radial gap (inner tube 2 cm outside the 10 cm capsule); a vertex moved inside the body reads negative. A topology
+    without body normals builds the first 9 columns alone, the same values, and needs no normals."""
+    cloth, body, xs, normals = scene
+    topo = GraphTopology.from_cloth(cloth, body_radius=0.03)
+    g = topo.build(xs[1], xs[1], body[1], body[1], xs[1], body_normals_next=normals[1])  # a still frame
+    n, sd = g.body_features[:, 9:12], g.body_features[:, 12]
+    assert torch.allclose(n.norm(dim=-1), torch.ones(len(n)), atol=2e-3)  # vertex_normals normalises with an epsilon
+    inner = cloth.layer_index[g.body_receivers] == 0
+    assert inner.sum() > 100
+    assert torch.all((sd[inner] > 0.012) & (sd[inner] < 0.028))  # 2 cm gap, nearest-vertex discretisation
+    assert torch.allclose(sd, (g.body_features[:, 4:7] * n).sum(-1))
+    inside = xs[1].clone()
+    centre_axis = body[1].mean(0)
+    v0 = int(g.body_receivers[inner][0])
+    radial = inside[v0] - centre_axis
+    radial[2] = 0.0
+    inside[v0] -= 0.03 * radial / radial.norm()  # 1 cm inside the capsule wall
+    gi = topo.build(xs[1], inside, body[1], body[1], xs[1], body_normals_next=normals[1])
+    row = int(torch.nonzero(gi.body_receivers == v0)[0, 0])
+    assert -0.015 < float(gi.body_features[row, 12]) < -0.005
+    legacy = GraphTopology.from_cloth(cloth, body_radius=0.03, body_normals=False)
+    gl = legacy.build(xs[1], xs[1], body[1], body[1], xs[1])
+    assert gl.body_features.shape[1] == LEGACY_BODY_EDGE_DIM
+    assert torch.equal(gl.body_features, g.body_features[:, :LEGACY_BODY_EDGE_DIM])
+    with pytest.raises(ValueError, match="body_normals_next"):
+        topo.build(xs[0], xs[1], body[1], body[2], xs[2])
+
+
 def test_features_translation_invariant(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     topo = GraphTopology.from_cloth(cloth)
     shift = torch.tensor([0.3, -0.2, 0.5])
-    g0 = topo.build(xs[0], xs[1], body[1], body[2], xs[2])
-    g1 = topo.build(xs[0] + shift, xs[1] + shift, body[1] + shift, body[2] + shift, xs[2] + shift)
+    g0 = topo.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    g1 = topo.build(xs[0] + shift, xs[1] + shift, body[1] + shift, body[2] + shift, xs[2] + shift,
+                    body_normals_next=normals[2])
     for a, b in [(g0.node_features, g1.node_features), (g0.mesh_features, g1.mesh_features),
                  (g0.virtual_features, g1.virtual_features), (g0.body_features, g1.body_features)]:
         assert torch.allclose(a, b, atol=1e-5)

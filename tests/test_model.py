@@ -3,6 +3,7 @@
 import pytest
 import torch
 
+from smln.geometry import vertex_normals
 from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube_outfit
 from smln.model import MLP, SMLN, Normalizer, RepulsionLayer, SMLNConfig
 
@@ -11,9 +12,10 @@ from smln.model import MLP, SMLN, Normalizer, RepulsionLayer, SMLNConfig
 def scene():
     torch.manual_seed(0)
     cloth = tube_outfit(radii=(0.12, 0.125), n_around=24, n_rings=10)
-    bv, _ = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
     tr = sway_motion(4)
-    return cloth, rigid_lbs(torch.as_tensor(bv), tr), rigid_lbs(cloth.rest_vertices, tr)
+    body = rigid_lbs(torch.as_tensor(bv), tr)
+    return cloth, body, rigid_lbs(cloth.rest_vertices, tr), vertex_normals(body, torch.as_tensor(bf))
 
 
 def small_config(**kw):
@@ -47,11 +49,11 @@ def test_mlp_layernorm_and_decoder():
 
 
 def test_forward_shapes_and_pinned(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     model = SMLN(small_config()).eval()
     topo = model.make_topology(cloth)
     with torch.no_grad():
-        p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+        p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     v = cloth.num_vertices
     assert p.shape == (v, 3) and a.shape == (v, 3)
     assert torch.all(torch.isfinite(p)) and torch.all(torch.isfinite(a))
@@ -62,23 +64,24 @@ def test_forward_shapes_and_pinned(scene):
 
 
 def test_default_config_runs(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     model = SMLN().eval()
     topo = model.make_topology(cloth)
     with torch.no_grad():
-        p, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+        p, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     assert torch.all(torch.isfinite(p))
 
 
 def test_translation_invariance(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     torch.manual_seed(1)
     model = SMLN(small_config(repulsion_threshold=0.02)).eval()  # wide threshold: repulsion active
     topo = model.make_topology(cloth)
     shift = torch.tensor([0.3, -0.2, 0.5])
     with torch.no_grad():
-        p0, a0, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
-        p1, a1, _ = model.step(topo, xs[0] + shift, xs[1] + shift, body[1] + shift, body[2] + shift, xs[2] + shift)
+        p0, a0, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+        p1, a1, _ = model.step(topo, xs[0] + shift, xs[1] + shift, body[1] + shift, body[2] + shift, xs[2] + shift,
+                                 body_normals_next=normals[2])
     assert a0.abs().max() > 0
     assert torch.allclose(p0, p1, atol=1e-5)
     assert torch.allclose(a0, a1, atol=1e-5)
@@ -120,11 +123,11 @@ def test_repulsion_pushes_penetrating_vertex_outward():
 
 
 def test_repulsion_off_gives_zeros(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     model = SMLN(small_config(use_repulsion_layer=False)).eval()
     topo = model.make_topology(cloth)
     with torch.no_grad():
-        _, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+        _, a, _ = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     assert torch.count_nonzero(a) == 0
 
 
@@ -152,10 +155,10 @@ def test_normalizer_accumulates_then_freezes():
 
 
 def test_backward_reaches_all_weights(scene):
-    cloth, body, xs = scene
+    cloth, body, xs, normals = scene
     model = SMLN(small_config(repulsion_threshold=0.02)).train()
     topo = model.make_topology(cloth)
-    p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2])
+    p, a, ex = model.step(topo, xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
     loss = (ex["x_next"] ** 2).sum()
     loss.backward()
     unused = "coarse_encoders.2."  # level 3 is not visited by the small schedule
@@ -213,8 +216,10 @@ def test_bfloat16_processor_is_close_and_leaves_the_model_alone():
     cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
     topo = model.make_topology(cloth)
     x = cloth.rest_vertices
-    body = torch.as_tensor(capsule_body(radius=0.1, height=1.2, max_edge=0.03)[0])
-    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004)
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    body = torch.as_tensor(bv)
+    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004,
+                   body_normals_next=vertex_normals(body, torch.as_tensor(bf)))
     with torch.no_grad():
         p32, _, _ = model(g, topo)
         p16, _, _ = low(g, topo)
@@ -223,3 +228,42 @@ def test_bfloat16_processor_is_close_and_leaves_the_model_alone():
     assert 0.0 < err < 0.05  # bfloat16 rounding, not a different model
     with pytest.raises(ValueError, match="precision"):
         with_processor_dtype(model, "int8")
+
+
+def test_widen_body_edges_keeps_the_function(scene):
+    """A model without body-normal features widened to one with them predicts the same p and a (the new encoder
+    columns start at zero), its normaliser takes the new columns' statistics from the samples, and the rest of the
+    statistics and weights are copied."""
+    from smln.model.migrate import widen_body_edges
+
+    cloth, body, xs, normals = scene
+    torch.manual_seed(1)
+    old = SMLN(small_config(body_normal_features=False))
+    old.train()
+    for t in (1, 2):  # accumulate some normaliser statistics and move the weights off their init
+        topo_o = old.make_topology(cloth)
+        old(topo_o.build(xs[t - 1], xs[t], body[t], body[t + 1], xs[t + 1]), topo_o)
+    with torch.no_grad():
+        for prm in old.parameters():
+            prm.add_(0.01 * torch.randn_like(prm))
+    old.eval()
+    new = SMLN(small_config())
+    topo_n = new.make_topology(cloth)
+    g = topo_n.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    samples = g.body_features[:, 9:]
+    widen_body_edges(old, new, samples)
+    new.eval()
+    topo_o = old.make_topology(cloth)
+    with torch.no_grad():
+        po, ao, _ = old(topo_o.build(xs[0], xs[1], body[1], body[2], xs[2]), topo_o)
+        pn, an, _ = new(g, topo_n)
+    assert torch.equal(po, pn) and torch.equal(ao, an) and po.abs().max() > 0
+    mean, std = new.body_norm.mean_std()
+    mean_o, std_o = old.body_norm.mean_std()
+    assert torch.allclose(mean[:9], mean_o) and torch.allclose(std[:9], std_o)
+    assert torch.allclose(mean[9:], samples.mean(0), atol=1e-6)
+    assert torch.allclose(std[9:], samples.std(0, unbiased=False).clamp_min(1e-4), atol=1e-5)
+    with pytest.raises(ValueError, match="same config"):
+        widen_body_edges(old, SMLN(small_config(latent_size=8)), samples)
+    with pytest.raises(ValueError, match="new_columns"):
+        widen_body_edges(old, new, samples[:, :3])

@@ -114,6 +114,38 @@ def test_init_from_checkpoint_keeps_weights_and_step(tmp_path):
     assert not torch.equal(_params(third), ema_first)
 
 
+@pytest.mark.slow
+def test_init_from_a_checkpoint_without_body_normals_widens_it(tmp_path):
+    """A run with body-normal edge features initialised from a 9-column checkpoint (all checkpoints before
+    session 5) holds the same weights, the body encoder's new input columns at zero, and new normaliser columns."""
+    import json
+
+    from smln.checkpoint import load_checkpoint
+
+    common = ["--outfits", _outfit(), *TINY]
+    (tmp_path / "legacy.json").write_text(json.dumps({"model": {"body_normal_features": False}}))
+    first = train(["--out", str(tmp_path / "a"), "--max-steps", "3", "--config", str(tmp_path / "legacy.json"),
+                   *common])
+    old, _ = load_checkpoint(tmp_path / "a" / "last")
+    assert old.body_encoder[0].in_features == 9
+    second = train(["--out", str(tmp_path / "b"), "--max-steps", str(first.step), "--init-from",
+                    str(tmp_path / "a" / "last"), *common])
+    assert second.model.config.body_normal_features and second.step == first.step
+    new_state, old_state = second.model.state_dict(), old.state_dict()
+    w = new_state["body_encoder.0.weight"]
+    assert w.shape[1] == 13 and torch.equal(w[:, :9], old_state["body_encoder.0.weight"])
+    assert torch.count_nonzero(w[:, 9:]) == 0
+    for key, value in old_state.items():
+        if not key.startswith(("body_encoder.0.weight", "body_norm.total")):
+            assert torch.equal(new_state[key], value), key
+    mean, std = second.model.body_norm.mean_std()
+    assert torch.isfinite(mean).all() and torch.all(std[9:12] > 0.1)  # normal components spread over [-1, 1]
+    (tmp_path / "small.json").write_text(json.dumps({"model": {"latent_size": 16}}))
+    with pytest.raises(ValueError, match="architecture"):  # anything else that differs is still refused
+        train(["--out", str(tmp_path / "c"), "--max-steps", "0", "--init-from", str(tmp_path / "a" / "last"),
+               "--config", str(tmp_path / "small.json"), *common])
+
+
 def test_ema_update_is_the_moving_average():
     from smln.train import TrainConfig
 

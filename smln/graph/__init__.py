@@ -3,6 +3,7 @@
 from smln.graph.hierarchy import HierarchyLevel, anchor_hierarchy, mesh_edges
 from smln.graph.multilayer import (
     BODY_EDGE_DIM,
+    LEGACY_BODY_EDGE_DIM,
     MESH_EDGE_DIM,
     NODE_DIM,
     NODE_FEATURES,
@@ -14,6 +15,7 @@ from smln.graph.multilayer import (
 
 __all__ = [
     "BODY_EDGE_DIM",
+    "LEGACY_BODY_EDGE_DIM",
     "MESH_EDGE_DIM",
     "NODE_DIM",
     "NODE_FEATURES",

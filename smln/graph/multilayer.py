@@ -16,8 +16,13 @@ Feature sets (all translation invariant: only differences of positions, normals,
 - virtual inter-layer edge (9, Eq. 5-6): x_s - x_r at t (3), norm, difference of the inertial predictions
   x̂ = x_t + v_t (3), norm, Δt. Each vertex of layer k+1 receives from its nearest vertex of layer k within
   ``virtual_radius`` and vice versa.
-- body world edge (9, Eq. 7-8): x_cloth(t) - x_body(t) (3), norm, x_cloth(t) - x_body(t+1) (3), norm, Δt.
-  Each garment vertex receives from its nearest body vertex (at t) within ``body_radius``.
+- body world edge (13, Eq. 7-8): x_cloth(t) - x_body(t) (3), norm, x_cloth(t) - x_body(t+1) (3), norm, Δt, and
+  (our addition) the body vertex's outward unit normal at t+1 (3) with the signed distance
+  (x_cloth(t) - x_body(t+1)) · n (1, negative inside the body). Each garment vertex receives from its nearest body
+  vertex (at t) within ``body_radius``. Body vertices are not graph nodes here (HOOD makes them nodes, whose
+  normals then reach the cloth through the messages), so without the normal columns a body edge cannot tell a
+  vertex 5 mm outside the skin from one 5 mm inside it. Models built with ``body_normals=False`` (checkpoints
+  saved before session 5) use the first 9 columns only (:data:`LEGACY_BODY_EDGE_DIM`).
 
 Edge arrays are (2, E) with row 0 = sender, row 1 = receiver. Virtual edges whose receiver lies in the upper
 layer of the pair are also the repulsion layer's pairs (outer vertex i, nearest inner vertex j).
@@ -50,7 +55,8 @@ NODE_FEATURES: tuple[tuple[str, int], ...] = (
 NODE_DIM = sum(n for _, n in NODE_FEATURES)  # 24
 MESH_EDGE_DIM = 12
 VIRTUAL_EDGE_DIM = 9
-BODY_EDGE_DIM = 9
+BODY_EDGE_DIM = 13
+LEGACY_BODY_EDGE_DIM = 9
 
 
 def _nearest(
@@ -85,7 +91,7 @@ class GraphInputs:
         virtual_edges: (2, Ev) sender/receiver of the inter-layer edges.
         virtual_features: (Ev, 9).
         body_receivers: (Eb,) garment vertex of each body edge.
-        body_features: (Eb, 9).
+        body_features: (Eb, 13), or (Eb, 9) for a topology built with ``body_normals=False``.
         repulsion_pairs: (2, Er) (outer i, inner j): virtual edges whose receiver is in the upper layer.
         x_cur: (V, 3) positions at t.
         velocity: (V, 3) v_t = x_t - x_{t-1}.
@@ -118,6 +124,7 @@ class GraphTopology:
         body_radius: float,
         virtual_radius: float,
         dt: float,
+        body_normals: bool = True,
     ) -> None:
         dev = cloth.rest_vertices.device
         self.cloth = cloth
@@ -132,6 +139,8 @@ class GraphTopology:
         self.body_radius = float(body_radius)
         self.virtual_radius = float(virtual_radius)
         self.dt = float(dt)
+        self.body_normals = bool(body_normals)
+        self.body_edge_dim = BODY_EDGE_DIM if self.body_normals else LEGACY_BODY_EDGE_DIM
         self.levels = levels
         self.mesh_edges = mesh_edge_index
         rest = cloth.rest_vertices.to(torch.float32)
@@ -165,6 +174,7 @@ class GraphTopology:
         body_radius: float = 0.03,
         virtual_radius: float = 0.05,
         dt: float = DT,
+        body_normals: bool = True,
     ) -> GraphTopology:
         """Static graph of an outfit.
 
@@ -176,12 +186,15 @@ class GraphTopology:
             body_radius: max distance of a body world edge, m (HOOD: 3 cm).
             virtual_radius: max distance of an inter-layer virtual edge, m.
             dt: time step, s.
+            body_normals: body edges carry the body normal and the signed distance (13 columns, default) or
+                not (9 columns, checkpoints saved before session 5).
         """
         faces = cloth.faces.detach().cpu().numpy()
         e = mesh_edges(faces)
         lv = anchor_hierarchy(e, cloth.num_vertices, levels, rule=coarse_edges, anchors=anchors)
         edge_index = torch.as_tensor(e, device=cloth.rest_vertices.device)
-        return cls(cloth, lv, edge_index, body_radius=body_radius, virtual_radius=virtual_radius, dt=dt)
+        return cls(cloth, lv, edge_index, body_radius=body_radius, virtual_radius=virtual_radius, dt=dt,
+                   body_normals=body_normals)
 
     def _edge_static(self, rest: torch.Tensor) -> torch.Tensor:
         """(E, 8) static columns of the mesh-edge features: rest vector, its norm, Δt, material."""
@@ -238,6 +251,7 @@ class GraphTopology:
         pinned_next: torch.Tensor | None = None,
         body_tree: PointTree | None = None,
         body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
+        body_normals_next: torch.Tensor | None = None,
     ) -> GraphInputs:
         """Features and proximity edges of one step.
 
@@ -254,6 +268,8 @@ class GraphTopology:
                 ``body_cur``, if already known (the metrics of the previous frame found them: ``FrameMetrics
                 .body_index`` / ``.body_distance``); skips the body query. Edges keep the pairs closer than the
                 body radius, as the query would.
+            body_normals_next: (Vb, 3) unit outward vertex normals of ``body_next``; required when the topology
+                was built with ``body_normals=True`` (``smln.geometry.vertex_normals(body_next, body_faces)``).
 
         Returns:
             :class:`GraphInputs`. Only features and the virtual/body edges are computed here.
@@ -286,9 +302,18 @@ class GraphTopology:
         xq = x_cur.index_select(0, qb_t)  # index_select: one index_add in the backward, not an index_put
         d0 = xq - body_cur.index_select(0, rb_t)
         d1 = xq - body_next.index_select(0, rb_t)
-        body_feat = torch.cat(
-            [d0, d0.norm(dim=-1, keepdim=True), d1, d1.norm(dim=-1, keepdim=True),
-             torch.full((qb.size, 1), dt, device=dev)], dim=-1)
+        cols = [d0, d0.norm(dim=-1, keepdim=True), d1, d1.norm(dim=-1, keepdim=True),
+                torch.full((qb.size, 1), dt, device=dev)]
+        if self.body_normals:
+            if body_normals_next is None:
+                raise ValueError("this topology's body edges carry the body normals: pass body_normals_next "
+                                 "(the (Vb, 3) vertex normals of body_next)")
+            if body_normals_next.shape != body_next.shape:
+                raise ValueError(f"body_normals_next is {tuple(body_normals_next.shape)}, body_next is "
+                                 f"{tuple(body_next.shape)}")
+            nb = body_normals_next.to(dev, torch.float32).index_select(0, rb_t)
+            cols += [nb, (d1 * nb).sum(dim=-1, keepdim=True)]
+        body_feat = torch.cat(cols, dim=-1)
 
         # virtual inter-layer edges (Eq. 5-6)
         ve, up = self._virtual_edges(xn)

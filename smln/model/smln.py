@@ -14,6 +14,7 @@ from smln.geometry import PointTree
 from smln.graph.hierarchy import check_rules
 from smln.graph.multilayer import (
     BODY_EDGE_DIM,
+    LEGACY_BODY_EDGE_DIM,
     MESH_EDGE_DIM,
     NODE_DIM,
     VIRTUAL_EDGE_DIM,
@@ -61,6 +62,9 @@ class SMLNConfig:
             or ``"bfs_even"`` (HOOD: even BFS distance, ~1/2 of the nodes).
         schedule: ((level, steps), ...) visited in order; starts and ends at level 0, changes level by one.
         body_radius: body world edge radius, m (HOOD: 3 cm).
+        body_normal_features: body world edges also carry the body vertex normal and the signed distance along
+            it (13 columns instead of 9, :mod:`smln.graph.multilayer`). Cards written before this field existed
+            load with False (:data:`smln.checkpoint.LEGACY_CONFIG`).
         virtual_radius: inter-layer virtual edge radius, m.
         use_repulsion_layer: add the repulsion layer's acceleration ``a`` (Eq. 14-16).
         repulsion_threshold: repulsion activation distance along the inner normal, m.
@@ -80,6 +84,7 @@ class SMLNConfig:
         default_factory=lambda: ((0, 1), (1, 1), (2, 1), (3, 2), (2, 1), (1, 1), (0, 1))
     )
     body_radius: float = 0.03
+    body_normal_features: bool = True
     virtual_radius: float = 0.05
     use_repulsion_layer: bool = True
     repulsion_threshold: float = 0.005
@@ -98,6 +103,11 @@ class SMLNConfig:
                 raise ValueError(f"schedule levels must change by exactly one, got {a} -> {b}")
         if max(lv for lv, _ in self.schedule) > self.levels:
             raise ValueError("schedule visits a level above `levels`")
+
+    @property
+    def body_edge_dim(self) -> int:
+        """Columns of the body world edge features (13 with body normals, 9 without)."""
+        return BODY_EDGE_DIM if self.body_normal_features else LEGACY_BODY_EDGE_DIM
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict (schedule as nested lists)."""
@@ -130,12 +140,12 @@ class SMLN(nn.Module):
         self.node_norm = Normalizer(NODE_DIM, acc)
         self.mesh_norm = Normalizer(MESH_EDGE_DIM, acc)
         self.virtual_norm = Normalizer(VIRTUAL_EDGE_DIM, acc)
-        self.body_norm = Normalizer(BODY_EDGE_DIM, acc)
+        self.body_norm = Normalizer(cfg.body_edge_dim, acc)
         self.coarse_norm = nn.ModuleList([Normalizer(MESH_EDGE_DIM, acc) for _ in range(cfg.levels)])
         self.node_encoder = MLP(NODE_DIM, lat, lat, nh)  # Eq. 9
         self.mesh_encoder = MLP(MESH_EDGE_DIM, lat, lat, nh)  # Eq. 10
         self.virtual_encoder = MLP(VIRTUAL_EDGE_DIM, lat, lat, nh)  # Eq. 11
-        self.body_encoder = MLP(BODY_EDGE_DIM, lat, lat, nh)  # Eq. 12
+        self.body_encoder = MLP(cfg.body_edge_dim, lat, lat, nh)  # Eq. 12
         self.coarse_encoders = nn.ModuleList([MLP(MESH_EDGE_DIM, lat, lat, nh) for _ in range(cfg.levels)])
         self.processor = Processor(lat, cfg.schedule, nh)
         self.decoder = MLP(lat, 3, lat, nh, layer_norm=False)
@@ -151,6 +161,7 @@ class SMLN(nn.Module):
         return GraphTopology.from_cloth(
             cloth, levels=c.levels, coarse_edges=c.coarse_edges, anchors=c.anchors,
             body_radius=c.body_radius, virtual_radius=c.virtual_radius, dt=c.dt,
+            body_normals=c.body_normal_features,
         )
 
     def forward(self, graph: GraphInputs, topology: GraphTopology) -> tuple[
@@ -236,10 +247,11 @@ class SMLN(nn.Module):
         pinned_next: torch.Tensor | None = None,
         body_tree: PointTree | None = None,
         body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
+        body_normals_next: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
         graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree,
-                               body_nearest=body_nearest)
+                               body_nearest=body_nearest, body_normals_next=body_normals_next)
         p, a, extras = self(graph, topology)
         extras["graph"] = graph
         return p, a, extras
