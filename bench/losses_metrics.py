@@ -15,6 +15,10 @@ busy machine slows them alike and their ratios stay comparable:
 - ``loss_fwd_bwd_ms``: :func:`total_loss` forward + backward with a prebuilt :class:`BodyStep`
   (``_incl_body_step``: building it too; ``_cached_pairs``: with the repulsion pairs given).
 
+- ``real_*``: the same calls on the real scene of the issue: the 2-layer tshirt_jacket at 2 cm edges (4,976
+  vertices) skinned onto the 12,272-vertex ``female_average`` body at frame 20 of the walk 02_01 (``--no-real`` skips
+  it).
+
 ``--threads N`` (default 2) sets torch's threads and the KD-tree queries' OpenMP threads
 (:func:`smln.geometry.set_threads`).
 
@@ -120,10 +124,37 @@ def median_ms(fn: Callable[[], object], runs: int = 20, warmup: int = 3) -> floa
     return 1e3 * statistics.median(ts)
 
 
+def real_scene_ms(frame: int = 20) -> dict[str, float]:
+    """Metrics (self-contained) and loss forward + backward on tshirt_jacket@2 cm on the real body (see above)."""
+    from smln.data_sampling import make_scene
+
+    scene = make_scene("tshirt_jacket", "female_average", "02_01_walk", edge_length=0.02, max_frames=frame + 2)
+    faces = torch.as_tensor(scene.body.faces)
+    body_cur, body_next = scene.body.vertices[frame], scene.body.vertices[frame + 1]
+    x_prev, x_cur = scene.skinned[frame - 1], scene.skinned[frame]
+    gen = torch.Generator().manual_seed(0)
+    x_next = scene.skinned[frame + 1] + 0.0005 * torch.randn(x_cur.shape, generator=gen)
+    x_np = x_next.numpy()
+    step = BodyStep.from_vertices(body_cur, body_next, faces)
+
+    def loss_fb() -> None:
+        x = x_next.clone().requires_grad_(True)
+        loss, _ = total_loss(x_prev, x_cur, x, step, scene.rest)
+        loss.backward()
+
+    return {
+        "real_scene": f"tshirt_jacket@0.02 ({scene.cloth.num_vertices} vertices) on female_average "
+                      f"({body_next.shape[0]} vertices), 02_01_walk frame {frame}",
+        "real_metrics_ms": median_ms(lambda: frame_metrics(x_np, body_next, scene.rest, body_faces=faces)),
+        "real_loss_fwd_bwd_ms": median_ms(loss_fb),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2, help="torch and KD-tree threads")
     ap.add_argument("--json", help="write the results here too")
+    ap.add_argument("--no-real", dest="real", action="store_false", help="skip the real outfit-on-body rows")
     args = ap.parse_args()
     set_threads(args.threads)
     torch.manual_seed(0)
@@ -177,6 +208,8 @@ def main() -> None:
         ),
         "sample_metrics": {k: round(v, 6) for k, v in m.values.items()},
     }
+    if args.real:
+        result.update(real_scene_ms())
     text = json.dumps(result, indent=2)
     print(text)
     if args.json:
