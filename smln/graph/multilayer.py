@@ -140,7 +140,6 @@ class GraphTopology:
         self.virtual_radius = float(virtual_radius)
         self.dt = float(dt)
         self.body_normals = bool(body_normals)
-        self.body_edge_dim = BODY_EDGE_DIM if self.body_normals else LEGACY_BODY_EDGE_DIM
         self.levels = levels
         self.mesh_edges = mesh_edge_index
         rest = cloth.rest_vertices.to(torch.float32)
