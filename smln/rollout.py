@@ -149,8 +149,11 @@ def rollout(
             trees[t] = build_tree(body_v[t])
         return trees[t]
 
-    def make_frame(t: int, x: torch.Tensor, p: np.ndarray, a: np.ndarray, fb: bool, extra: dict) -> RolloutFrame:
-        fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np, body_tree=body_tree(t))
+    def make_frame(t: int, x: torch.Tensor, p: np.ndarray, a: np.ndarray, fb: bool, extra: dict,
+                   body_normals: torch.Tensor | None = None) -> RolloutFrame:
+        """The frame's metrics; ``body_normals``: (Vb, 3) of body frame t if the step already computed them."""
+        fm = frame_metrics(x, body_v[t], rest, body_faces=faces_np, body_normals=body_normals,
+                           body_tree=body_tree(t))
         nearest.clear()  # the next step starts from these positions: its body edges reuse the query
         nearest[t] = (fm.body_index, fm.body_distance)
         metrics = dict(fm.values)
@@ -185,6 +188,7 @@ def rollout(
     with torch.no_grad():
         for t in range(first, n):
             t0 = time.perf_counter()
+            # body normals at t: the step's body edges (t+1 of the step) and the frame's metrics share them
             normals = vertex_normals(body_d[t], faces_d) if topology.body_normals else None
             p, a, ex = model.step(
                 topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1),
@@ -206,7 +210,7 @@ def rollout(
                 )
             reason = _divergence(x_next, skinned[t], max_distance)
             if reason is None:
-                frame = make_frame(t, x_next, _np(p), _np(a), False, extra)
+                frame = make_frame(t, x_next, _np(p), _np(a), False, extra, normals)
                 limit = max_strain + _max_strain(skinned[t], rest)
                 if frame.metrics["strain_max"] > limit:
                     reason = f"max edge strain {frame.metrics['strain_max']:.2f} > {limit:.2f}"
@@ -215,7 +219,7 @@ def rollout(
                     raise RolloutError(f"frame {t}: rollout diverged ({reason})")
                 x_next = skinned[t]
                 x_cur = skinned[t - 1]
-                frame = make_frame(t, x_next, zeros, zeros, True, extra)
+                frame = make_frame(t, x_next, zeros, zeros, True, extra, normals)
             yield frame
             if t - first < settle_steps and not frame.fallback:
                 x_prev, x_cur = x_next - (skinned[t] - skinned[t - 1]), x_next
