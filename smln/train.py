@@ -56,6 +56,7 @@ class TrainConfig:
     lr: float = 1e-4
     lr_halving_steps: int = 20_000
     min_lr: float = 1e-6
+    lr_origin: int = 0  # the step the lr schedule counts from (``--lr-restart`` sets it to the --init-from step)
     grad_clip: float = 1.0
     edge_length: float = 0.035
     shapes: list[str] = field(default_factory=lambda: list(BODY_SHAPES))
@@ -207,13 +208,20 @@ class Trainer:
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
         for group in self.opt.param_groups:
-            group["lr"] = max(self.cfg.min_lr, self.cfg.lr * 0.5 ** (self.step / self.cfg.lr_halving_steps))
+            group["lr"] = self.learning_rate()
         self.opt.step()
         self.update_ema()
         self.step += 1
         terms["grad_norm"] = float(grad_norm)
         terms["repulsion_mean"] = float(a.detach().norm(dim=-1).mean())
         return x_next.detach(), terms
+
+    def learning_rate(self, step: int | None = None) -> float:
+        """lr * 0.5^((step - lr_origin) / lr_halving_steps), at least min_lr (the schedule restarts at
+        ``lr_origin``; before it, the step counts as the origin)."""
+        s = self.step if step is None else step
+        k = max(0, s - self.cfg.lr_origin) / self.cfg.lr_halving_steps
+        return max(self.cfg.min_lr, self.cfg.lr * 0.5**k)
 
     def _agree(self, value: float, op: str) -> float:
         """The same value on every rank (min or max), so all ranks take the same number of optimiser steps."""
@@ -485,6 +493,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--max-steps", type=int)
     p.add_argument("--seed", type=int)
     p.add_argument("--lr", type=float)
+    p.add_argument("--lr-halving-steps", type=int, help="steps per halving of the lr (default 20000)")
+    p.add_argument("--lr-restart", action="store_true",
+                   help="with --init-from: the lr schedule starts again at --lr from the checkpoint's step "
+                        "(a warm restart; the step count and the rollout-length schedule go on)")
     p.add_argument("--threads", type=int)
     p.add_argument("--device", default="cpu")
     p.add_argument("--outfits", nargs="+")
@@ -507,7 +519,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
         base = json.loads(Path(args.config).read_text())
     cfg = TrainConfig(**base)
     for flag, key in (("variant", "variant"), ("minutes", "minutes"), ("max_steps", "max_steps"), ("seed", "seed"),
-                      ("lr", "lr"), ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
+                      ("lr", "lr"), ("lr_halving_steps", "lr_halving_steps"),
+                      ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight")):
@@ -526,6 +539,10 @@ def train(argv: list[str] | None = None) -> Trainer:
         trainer.load_state()
     elif cfg.init_from:
         trainer.init_from(cfg.init_from)
+        if args.lr_restart:
+            cfg.lr_origin = trainer.step
+    elif args.lr_restart:
+        raise ValueError("--lr-restart needs --init-from")
     trainer.fit()
     return trainer
 

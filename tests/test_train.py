@@ -181,3 +181,34 @@ def test_variant_loss_weights():
     assert cfg.weights().repulsion == 1e3 == paper.repulsion
     cfg, _ = parse_args(["--out", "x", "--variant", "baseline", "--repulsion-weight", "1000"])
     assert cfg.weights().repulsion == 0.0
+
+
+def test_learning_rate_schedule_halves_and_restarts():
+    from smln.train import TrainConfig
+
+    trainer = Trainer.__new__(Trainer)  # the schedule needs only the config and the step
+    trainer.cfg = TrainConfig(lr=1e-4, lr_halving_steps=1000, min_lr=1e-6)
+    trainer.step = 0
+    assert trainer.learning_rate() == pytest.approx(1e-4)
+    assert trainer.learning_rate(2000) == pytest.approx(2.5e-5)
+    assert trainer.learning_rate(10_000) == pytest.approx(1e-6)  # floored at min_lr
+    trainer.cfg.lr_origin = 5000  # a warm restart at step 5000
+    assert trainer.learning_rate(5000) == pytest.approx(1e-4)
+    assert trainer.learning_rate(6000) == pytest.approx(5e-5)
+    assert trainer.learning_rate(100) == pytest.approx(1e-4)
+
+
+@pytest.mark.slow
+def test_lr_restart_records_the_origin_and_resumes_with_it(tmp_path):
+    import json
+
+    common = ["--outfits", _outfit(), *TINY]
+    first = train(["--out", str(tmp_path / "a"), "--max-steps", "4", *common])
+    second = train(["--out", str(tmp_path / "b"), "--max-steps", str(first.step + 2), "--init-from",
+                    str(tmp_path / "a" / "last"), "--lr-restart", "--lr", "3e-5", *common])
+    assert second.cfg.lr_origin == first.step
+    saved = json.loads((tmp_path / "b" / "config.json").read_text())
+    assert saved["lr_origin"] == first.step and saved["lr"] == 3e-5
+    assert second.opt.param_groups[0]["lr"] == pytest.approx(second.learning_rate(second.step - 1))
+    with pytest.raises(ValueError, match="needs --init-from"):
+        train(["--out", str(tmp_path / "c"), "--max-steps", "1", "--lr-restart", *common])
