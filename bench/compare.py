@@ -145,14 +145,15 @@ def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None
     }
 
 
-def run_method(kind: str, model, scene, frames: int, projection: bool = False, precision: str = "float32"
-               ) -> tuple[np.ndarray, list[dict[str, float]]]:
+def run_method(kind: str, model, scene, frames: int, projection: bool = False, precision: str = "float32",
+               compiled: bool = False) -> tuple[np.ndarray, list[dict[str, float]]]:
     """Positions (T, V, 3) and per-frame metric dicts of one method (``fallback`` added as 0/1); ``projection``:
     the model's rollout uses the body and layer collision projection (:mod:`smln.projection`); ``precision``: the
-    models' processor precision (:mod:`smln.model.precision`)."""
+    models' processor precision (:mod:`smln.model.precision`); ``compiled``: their processor through torch.compile
+    (:mod:`smln.model.compiled`; the compilation lands in the first step, outside the median)."""
     xs, rows = [], []
     for fr in method_frames(kind, model, scene, frames, project_body=projection, project_layers=projection,
-                            precision=precision):
+                            precision=precision, compiled=compiled):
         xs.append(np.asarray(fr.garment_positions, np.float32))
         m = dict(fr.metrics)
         m["fallback"] = float(fr.fallback)
@@ -203,7 +204,9 @@ def markdown(report: dict) -> str:
         f"- Scenes: body `{report['shape']}`, outfits at the training edge length {report['edge_length']} m, "
         f"{report['frames']} frames per clip; statistics over frames {FIRST}..{report['frames'] - 1}.",
         "- Checkpoints: " + ", ".join(f"`{k}` from `{v}`" for k, v in report["checkpoints"].items())
-        + f"; processor precision {report.get('precision', 'float32')} (`smln.model.precision`).",
+        + f"; processor precision {report.get('precision', 'float32')} (`smln.model.precision`)"
+        + ("; processor compiled with torch.compile (`smln.model.compiled`; the one-off compilation falls in the "
+           "first simulated frame, outside the median)." if report.get("compiled") else "; processor eager."),
         "- Physics reference: Newton `SolverVBD` (substeps x iterations per frame in each scene's heading; "
         f"simulated now with {report['physics']['substeps']} x {report['physics']['iterations']} when no cached "
         "rollout), body = moving mesh collider, self-contact on (see `bench/physics_reference.py`); "
@@ -257,6 +260,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--no-solver", action="store_true", help="leave out the L-BFGS solver (slow)")
     p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"],
                    help="processor precision of the SMLN rows (bfloat16: CPUs with AMX / AVX512-BF16)")
+    p.add_argument("--compile", action="store_true",
+                   help="SMLN rows with the processor through torch.compile (smln.model.compiled)")
     p.add_argument("--projection", action="store_true",
                    help=f"add a row: {PROJECTED}, the full model with the collision projection of smln.projection")
     p.add_argument("--json", help="write all figures as JSON")
@@ -291,7 +296,7 @@ def main(argv: list[str] | None = None) -> dict:
                         "newton": newton_version, "python": platform.python_version(),
                         "date": time.strftime("%Y-%m-%d %H:%M"), "note": a.note},
         "shape": a.shape, "edge_length": a.edge_length, "frames": a.frames, "checkpoints": sources,
-        "precision": a.precision,
+        "precision": a.precision, "compiled": a.compile,
         "physics": {"substeps": a.substeps, "iterations": a.iterations, "preroll": a.preroll}, "scenes": {},
         "notes": list(a.notes),
     }
@@ -314,7 +319,8 @@ def main(argv: list[str] | None = None) -> dict:
             for name, kind, model in methods:
                 t0 = time.time()
                 x, rows = run_method("model" if kind == "projected" else kind, model, scene, n,
-                                     projection=kind == "projected", precision=a.precision)
+                                     projection=kind == "projected", precision=a.precision,
+                                     compiled=a.compile)
                 results[name] = stats(rows, x, x_phys)
                 r = results[name]
                 print(f"  {name:28s} {r['ms']:8.0f} ms/frame  L-Coll {r['l_coll']:.2f}%  H-Coll {r['h_coll']:.2f}% "

@@ -57,9 +57,11 @@ def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
 
 
 def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu", project_body: bool = False,
-                  project_layers: bool = False, precision: str = "float32") -> Iterator[RolloutFrame]:
+                  project_layers: bool = False, precision: str = "float32", compiled: bool = False
+                  ) -> Iterator[RolloutFrame]:
     """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model (optionally with the
-    collision projection of :mod:`smln.projection` after each step, and the processor in ``precision``)."""
+    collision projection of :mod:`smln.projection` after each step, the processor in ``precision`` and compiled,
+    :mod:`smln.model.compiled`)."""
     if method == "skinning":
         return skinning_frames(scene, num_frames)
     if method == "solver":
@@ -69,7 +71,8 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
     from smln.rollout import rollout
 
     return rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=num_frames, device=device,
-                   fallback=True, project_body=project_body, project_layers=project_layers, precision=precision)
+                   fallback=True, project_body=project_body, project_layers=project_layers, precision=precision,
+                   compiled=compiled)
 
 
 def summarise(
@@ -106,6 +109,7 @@ def evaluate(
     project_body: bool = False,
     project_layers: bool = False,
     precision: str = "float32",
+    compiled: bool = False,
 ) -> list[RunResult]:
     """Run every method on every outfit × clip.
 
@@ -114,6 +118,7 @@ def evaluate(
         outfits, motions: names. shape: body preset. frames: frames per clip (None = full clip).
         project_body, project_layers: the models' rollouts use the collision projection (smln.projection).
         precision: the models' processor precision (smln.model.precision).
+        compiled: the models' processor runs through torch.compile (smln.model.compiled).
     """
     from smln.garments import outfit_split
     from smln.motion import load_body_sequence
@@ -128,7 +133,8 @@ def evaluate(
             for name, model in methods.items():
                 t0 = time.time()
                 kind = name if model is None else "model"
-                frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision)
+                frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision,
+                                          compiled)
                 seq_metrics, rows = summarise(frames_it, scene.skinned)
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
@@ -208,13 +214,17 @@ def make_report(results: list[RunResult], outfits: list[str], motions: list[str]
 
 def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
     """The options of a model's rollout shared by ``smln eval`` and ``smln rollout``: ``--project-body``,
-    ``--project-layers`` (:mod:`smln.projection`) and ``--precision`` (:mod:`smln.model.precision`)."""
+    ``--project-layers`` (:mod:`smln.projection`), ``--precision`` (:mod:`smln.model.precision`) and ``--compile``
+    (:mod:`smln.model.compiled`)."""
     p.add_argument("--project-body", action="store_true",
                    help="after each network step, move body-penetrating vertices back out (smln.projection)")
     p.add_argument("--project-layers", action="store_true",
                    help="after each network step, move each layer out of the one beneath (smln.projection)")
     p.add_argument("--precision", default="float32", choices=["float32", "bfloat16"],
                    help="processor precision (bfloat16: faster on CPUs with AMX / AVX512-BF16; smln.model.precision)")
+    p.add_argument("--compile", action="store_true",
+                   help="run the processor through torch.compile: 12-15%% faster steps on CPU after a one-off "
+                        "30-80 s compilation (smln.model.compiled)")
 
 
 def cli_main(args: argparse.Namespace) -> None:
@@ -268,7 +278,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     motions = resolve_names(a.motions, "motions")
     results = evaluate(methods, outfits, motions, shape=a.shape, frames=a.frames, edge_length=a.edge_length,
                        device=a.device, project_body=a.project_body, project_layers=a.project_layers,
-                       precision=a.precision)
+                       precision=a.precision, compiled=a.compile)
     report = make_report(results, outfits, motions, a.shape, a.frames)
     print(report)
     if a.markdown:

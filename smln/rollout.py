@@ -28,6 +28,7 @@ from smln.cloth import Cloth
 from smln.geometry import PointTree, build_tree, vertex_normals
 from smln.losses.rest import ClothRest
 from smln.metrics import frame_metrics
+from smln.model.compiled import with_compiled_processor
 from smln.model.precision import with_processor_dtype
 from smln.model.smln import SMLN
 from smln.projection import project
@@ -81,6 +82,7 @@ def rollout(
     project_body: bool = False,
     project_layers: bool = False,
     precision: str = "float32",
+    compiled: bool = False,
 ) -> Iterator[RolloutFrame]:
     """Animate ``cloth`` on a body clip with ``model``.
 
@@ -111,6 +113,8 @@ def rollout(
             ``projection_mean_mm`` / ``projection_max_mm`` (their displacement) and ``ms_projection``.
         precision: "float32" or "bfloat16" (the processor in bfloat16, :mod:`smln.model.precision`; ~1.4x
             faster network on CPUs with AMX / AVX512-BF16, slower elsewhere).
+        compiled: run the processor through ``torch.compile`` (:mod:`smln.model.compiled`; 12-15 % faster steps
+            on CPU after a one-off compilation of 30-80 s on the first step).
 
     Yields:
         :class:`RolloutFrame` for frames 0 .. num_frames-1.
@@ -127,6 +131,8 @@ def rollout(
         return
     dev = torch.device(device)
     model = with_processor_dtype(model.to(dev).eval(), precision)
+    if compiled:
+        model = with_compiled_processor(model)
     cloth_d = cloth.to(dev)
     topology = model.make_topology(cloth_d)
     rest = ClothRest.from_cloth(cloth)

@@ -267,3 +267,53 @@ def test_widen_body_edges_keeps_the_function(scene):
         widen_body_edges(old, SMLN(small_config(latent_size=8)), samples)
     with pytest.raises(ValueError, match="new_columns"):
         widen_body_edges(old, new, samples[:, :3])
+
+
+def _compile_case():
+    model = SMLN(small_config()).eval()
+    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
+    topo = model.make_topology(cloth)
+    x = cloth.rest_vertices
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    body = torch.as_tensor(bv)
+    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004,
+                   body_normals_next=vertex_normals(body, torch.as_tensor(bf)))
+    return model, topo, g
+
+
+@pytest.mark.slow
+def test_compiled_processor_predicts_what_the_eager_one_does():
+    from smln.model.compiled import compiled_processor, with_compiled_processor
+
+    model, topo, g = _compile_case()
+    fast = with_compiled_processor(model)
+    assert fast.processor is not model.processor and fast.node_encoder is model.node_encoder
+    assert "processor" in dict(model.named_children()) and not hasattr(model.processor, "inner")  # untouched
+    assert compiled_processor(model.processor) is fast.processor  # one wrapper per processor: compiled once
+    with torch.no_grad():
+        p_eager, _, _ = model(g, topo)
+        p_fast, _, _ = fast(g, topo)
+    assert fast.processor.failed is None
+    torch.testing.assert_close(p_fast, p_eager, rtol=1e-4, atol=1e-6)
+    assert set(fast.state_dict()) == {k.replace("processor.", "processor.inner.", 1) for k in model.state_dict()}
+
+
+def test_compiled_processor_falls_back_to_eager_when_compilation_fails(monkeypatch):
+    from smln.model import compiled
+
+    def broken(module, **kwargs):
+        def call(*a, **k):
+            raise RuntimeError("no C++ compiler found")
+        return call
+
+    monkeypatch.setattr(compiled.torch, "compile", broken)
+    model, topo, g = _compile_case()
+    wrapper = compiled.CompiledProcessor(model.processor)
+    fast = compiled.with_compiled_processor(model)
+    fast._modules["processor"] = wrapper
+    with torch.no_grad():
+        p_eager, _, _ = model(g, topo)
+        with pytest.warns(RuntimeWarning, match="no C.. compiler"):
+            p_fast, _, _ = fast(g, topo)
+    assert wrapper.failed is not None and "no C++ compiler" in wrapper.failed
+    assert torch.equal(p_fast, p_eager)

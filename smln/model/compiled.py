@@ -1,0 +1,70 @@
+"""Compiled inference: run the processor (the message passing, ~75 % of a step) through ``torch.compile``.
+
+Inductor fuses the processor's element-wise work (bias adds, ReLUs, LayerNorms, residual adds) into C++ loops
+around the matrix products, which the eager CPU path runs as separate passes over the (E, L) edge latents.
+Measured on the full checkpoint, tshirt_jacket at 3.5 cm (1,637 vertices), one thread: 12-15 % less time per
+step (docs/BENCHMARKS.md, session 6). The price is a one-off compilation of about 30-80 s on the first step
+(shapes are marked dynamic, so later frames, clips and outfits with other edge counts reuse it; Inductor also
+caches on disk), which is why it is opt-in (``--compile``).
+
+Inference only: gradients are off inside. If the compiler is unavailable (no C++ toolchain) or compilation
+fails, the processor falls back to eager with one warning; the results are the same up to float rounding.
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+import weakref
+
+import torch
+from torch import nn
+
+_COMPILED: weakref.WeakKeyDictionary[nn.Module, CompiledProcessor] = weakref.WeakKeyDictionary()
+
+
+class CompiledProcessor(nn.Module):
+    """Wraps a processor: calls ``torch.compile(processor, dynamic=True)``, eager on any compilation failure.
+
+    Args:
+        processor: the processor (float32 or a :class:`~smln.model.precision.LowPrecisionProcessor`); shared,
+            not copied.
+    """
+
+    def __init__(self, processor: nn.Module) -> None:
+        super().__init__()
+        self.inner = processor
+        # not a registered submodule: the wrapper's state_dict is the processor's, under ``inner.``
+        object.__setattr__(self, "_compiled", torch.compile(processor, dynamic=True))
+        self.failed: str | None = None
+
+    def forward(self, *args, **kwargs) -> torch.Tensor:
+        """Same contract as the wrapped processor's forward."""
+        if self.failed is None:
+            try:
+                with torch.no_grad():
+                    return self._compiled(*args, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - any compiler failure: fall back, never break a rollout
+                self.failed = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+                warnings.warn(f"torch.compile of the processor failed ({self.failed}); running it eager",
+                              RuntimeWarning, stacklevel=2)
+        return self.inner(*args, **kwargs)
+
+
+def compiled_processor(processor: nn.Module) -> CompiledProcessor:
+    """The one :class:`CompiledProcessor` of ``processor`` (cached: repeated rollouts compile once)."""
+    wrapped = _COMPILED.get(processor)
+    if wrapped is None:
+        wrapped = CompiledProcessor(processor)
+        _COMPILED[processor] = wrapped
+    return wrapped
+
+
+def with_compiled_processor(model: nn.Module) -> nn.Module:
+    """A shallow copy of the SMLN whose processor is compiled (all modules, the weights included, shared with
+    ``model``, which is left as it was)."""
+    fast = copy.copy(model)
+    fast._modules = dict(model._modules)  # a new module table: replacing the processor leaves ``model`` intact
+    fast._modules["processor"] = compiled_processor(model.processor)
+    fast.training = False
+    return fast
