@@ -20,9 +20,11 @@ on 2 cores; the punch (0.9 cm/frame body speed, fists up to 7 cm/frame) is the s
   NPZ is there, else simulated now).
 
 Columns: ms/frame (median over the simulated frames), speed-up over physics (physics ms / method ms), L-Coll %,
-H-Coll % (mean over frames), mean / max edge strain, and the mean vertex distance to the physics result (mm, over
-frames and vertices). All statistics use frames 2 .. N-1 (frames 0-1 are the skinned initial state of the network
-rollouts). Plots of H-Coll, L-Coll and the distance to physics over time go to ``docs/benchmarks/*.png``.
+H-Coll % (mean over frames; LayersNet's nearest-vertex tests), the same against the closest point on the inner
+layers' / body's triangles (``surf.``, :func:`smln.metrics.behind_surface`), mean / max edge strain, and the
+mean vertex distance to the physics result (mm, over frames and vertices). All statistics use frames 2 .. N-1
+(frames 0-1 are the skinned initial state of the network rollouts). Plots of H-Coll, L-Coll and the distance to
+physics over time go to ``docs/benchmarks/*.png``.
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ from smln.data_sampling import make_scene  # noqa: E402
 from smln.evaluate import method_frames  # noqa: E402
 from smln.export import load_rollout_npz, save_rollout_npz  # noqa: E402
 from smln.garments import TRAINING_EDGE_LENGTH  # noqa: E402
-from smln.geometry import set_threads
+from smln.geometry import set_threads  # noqa: E402
+from smln.metrics import surface_h_coll, surface_l_coll  # noqa: E402
 
 VARIANTS = (("SMLN (full)", "full"), ("no_repulsion_layer", "no_repulsion_layer"), ("baseline", "baseline"))
 PHYSICS = "physics (Newton VBD)"
@@ -112,7 +115,17 @@ def physics_rollout(scene, frames: int, physics_dir: Path, substeps: int, iterat
     return np.stack([f.garment_positions for f in out]), [f.metrics for f in out], meta, f"{path} (simulated now)"
 
 
-def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None) -> dict:
+def surface_series(x: np.ndarray, scene) -> tuple[list[float], list[float]]:
+    """Per-frame point-to-triangle L-Coll and H-Coll (%) of positions x (T, V, 3) on ``scene``
+    (:func:`smln.metrics.surface_l_coll`, :func:`smln.metrics.surface_h_coll`)."""
+    faces, li = scene.cloth.faces.numpy(), scene.cloth.layer_index.numpy()
+    body, body_faces = scene.body.vertices.numpy(), scene.body.faces.numpy()
+    lc = [surface_l_coll(x[t], faces, li) for t in range(len(x))]
+    hc = [surface_h_coll(x[t], body[t], body_faces) for t in range(len(x))]
+    return lc, hc
+
+
+def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None, scene=None) -> dict:
     """Table statistics over frames FIRST .. N-1.
 
     Args:
@@ -122,11 +135,15 @@ def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None
 
     Returns:
         dict with ms (median ms/frame), l_coll, h_coll (%, mean), strain_mean (mean), strain_max (max),
-        dist_mm (mean vertex distance to physics, mm) and the per-frame series ``series`` (key -> list).
+        dist_mm (mean vertex distance to physics, mm), with a ``scene`` also l_coll_surface / h_coll_surface (%,
+        the point-to-triangle tests), and the per-frame series ``series`` (key -> list).
     """
     sel = rows[FIRST:]
     dist = np.linalg.norm(x - x_phys, axis=-1).mean(axis=1) * 1e3 if x_phys is not None else None
+    lc_s, hc_s = surface_series(x, scene) if scene is not None else ([float("nan")] * len(x),) * 2
     return {
+        "l_coll_surface": float(np.mean(lc_s[FIRST:])),
+        "h_coll_surface": float(np.mean(hc_s[FIRST:])),
         # the simulation step (graph, network, repulsion layer) plus the collision projection if any; the
         # per-frame evaluation metrics are not part of a step (the physics time excludes them too)
         "ms": float(np.median([r["ms_model"] + r.get("ms_projection", 0.0) for r in sel])),
@@ -139,6 +156,8 @@ def stats(rows: list[dict[str, float]], x: np.ndarray, x_phys: np.ndarray | None
         "series": {
             "h_coll": [r["h_coll"] for r in rows],
             "l_coll": [r["l_coll"] for r in rows],
+            "l_coll_surface": list(lc_s),
+            "h_coll_surface": list(hc_s),
             "strain_mean": [r["strain_mean"] for r in rows],
             "dist_mm": dist.tolist() if dist is not None else [],
         },
@@ -215,16 +234,19 @@ def markdown(report: dict) -> str:
            if report["physics"].get("preroll") else "it starts from the skinned frame 1 like the learned models."),
         "",
         "Columns: ms/frame (median, simulated frames only), speed-up = physics ms / method ms, L-Coll / H-Coll "
-        "(% of vertices, mean over frames), mean / max edge strain |l/l0 - 1| (%), distance = mean vertex distance "
-        "to the physics result (mm).",
+        "(% of vertices, mean over frames; LayersNet's tests against the nearest inner/body *vertex* and its normal), "
+        "L-Coll / H-Coll surf. (the same, against the closest point on the inner layers' / body's *triangles*; a "
+        "closest point on an inner layer's hem is not a collision; `smln.metrics.behind_surface`), mean / max edge "
+        "strain |l/l0 - 1| (%), distance = mean vertex distance to the physics result (mm).",
         "",
     ]
-    head = ("| method | ms/frame | speed-up vs physics | L-Coll % | H-Coll % | strain mean % | strain max % "
-            "| dist. to physics (mm) | fallback frames |")
-    sep = "|" + "---|" * 9
+    head = ("| method | ms/frame | speed-up vs physics | L-Coll % | H-Coll % | L-Coll surf. % | H-Coll surf. % "
+            "| strain mean % | strain max % | dist. to physics (mm) | fallback frames |")
+    sep = "|" + "---|" * 11
 
     def row(name: str, r: dict) -> str:
         return (f"| {name} | {r['ms']:.0f} | {r['speedup']:.0f}x | {r['l_coll']:.2f} | {r['h_coll']:.2f} "
+                f"| {r.get('l_coll_surface', float('nan')):.2f} | {r.get('h_coll_surface', float('nan')):.2f} "
                 f"| {100 * r['strain_mean']:.2f} | {100 * r['strain_max']:.1f} | {r['dist_mm']:.1f} "
                 f"| {r['fallback_frames']} |")
 
@@ -321,11 +343,11 @@ def main(argv: list[str] | None = None) -> dict:
                 x, rows = run_method("model" if kind == "projected" else kind, model, scene, n,
                                      projection=kind == "projected", precision=a.precision,
                                      compiled=a.compile)
-                results[name] = stats(rows, x, x_phys)
+                results[name] = stats(rows, x, x_phys, scene)
                 r = results[name]
                 print(f"  {name:28s} {r['ms']:8.0f} ms/frame  L-Coll {r['l_coll']:.2f}%  H-Coll {r['h_coll']:.2f}% "
                       f" dist {r['dist_mm']:.1f} mm  ({time.time() - t0:.0f} s)", flush=True)
-            results[PHYSICS] = stats(rows_phys, x_phys, x_phys)
+            results[PHYSICS] = stats(rows_phys, x_phys, x_phys, scene)
             r = results[PHYSICS]
             print(f"  {PHYSICS:28s} {r['ms']:8.0f} ms/frame  L-Coll {r['l_coll']:.2f}%  H-Coll {r['h_coll']:.2f}%",
                   flush=True)
@@ -341,7 +363,8 @@ def main(argv: list[str] | None = None) -> dict:
     for name in names:
         rs = [s["methods"][name] for s in report["scenes"].values() if name in s["methods"]]
         overall[name] = {k: float(np.mean([r[k] for r in rs])) for k in
-                         ("ms", "speedup", "l_coll", "h_coll", "strain_mean", "dist_mm")}
+                         ("ms", "speedup", "l_coll", "h_coll", "l_coll_surface", "h_coll_surface", "strain_mean",
+                          "dist_mm")}
         overall[name]["strain_max"] = float(max(r["strain_max"] for r in rs))
         overall[name]["fallback_frames"] = int(sum(r["fallback_frames"] for r in rs))
     report["overall"] = overall

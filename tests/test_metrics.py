@@ -205,3 +205,85 @@ def test_matches_brute_force_reference_three_layers(prebuilt):
     np.testing.assert_array_equal(m.layer_penetration, ref["layer_penetration"])
     np.testing.assert_array_equal(m.body_index, ref["body_index"])
     assert m.values["nan"] == 0.0 and m.values["exploded"] == 0.0
+
+
+def _two_layers(inner_v, inner_f, outer_v, outer_f):
+    x = np.concatenate([inner_v, outer_v]).astype(np.float32)
+    faces = np.concatenate([inner_f, outer_f + len(inner_v)]).astype(np.int64)
+    li = np.concatenate([np.zeros(len(inner_v)), np.ones(len(outer_v))]).astype(np.int64)
+    return x, faces, li
+
+
+def test_surface_l_coll_concentric_spheres():
+    from smln.metrics import surface_l_coll, surface_layer_penetration
+
+    s = trimesh.creation.icosphere(subdivisions=3)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    assert surface_l_coll(*_two_layers(v, f, 1.05 * v, f)) == 0.0  # outer layer outside everywhere
+    assert surface_l_coll(*_two_layers(v, f, 0.95 * v, f)) == 100.0  # outer layer inside everywhere
+    # a cap of the outer sphere pushed inside: exactly those vertices
+    outer = 1.05 * v
+    cap = v[:, 2] > 0.8
+    outer[cap] = 0.97 * v[cap]
+    x, faces, li = _two_layers(v, f, outer, f)
+    mask = surface_layer_penetration(x, faces, li)
+    assert not mask[li == 0].any()
+    np.testing.assert_array_equal(mask[li == 1], cap)
+    assert surface_l_coll(*_two_layers(v, f, v * 1.05, f)[:2], np.zeros(2 * len(v), np.int64)) == 0.0  # 1 layer
+
+
+def test_surface_l_coll_beyond_a_hem_is_not_a_collision():
+    """An inner hemisphere (open at the equator) under a smaller full sphere: the outer vertices of the lower half
+    lie beyond the hem (closest point on the boundary) and do not count; the upper half is behind the surface."""
+    from smln.metrics import surface_layer_penetration
+
+    s = trimesh.creation.icosphere(subdivisions=3)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    keep = v[f].mean(axis=1)[:, 2] > 0.0
+    hemi = trimesh.Trimesh(v, f[keep], process=False)
+    hemi.remove_unreferenced_vertices()
+    x, faces, li = _two_layers(np.asarray(hemi.vertices), np.asarray(hemi.faces), 0.95 * v, f)
+    mask = surface_layer_penetration(x, faces, li)[li == 1]
+    z = v[:, 2]
+    assert mask[z > 0.2].all()
+    assert not mask[z < -0.05].any()
+
+
+def test_surface_l_coll_ignores_the_nearest_vertex_artefact_on_a_ridge():
+    """A coarse roof (45 degree flanks, 3.5 cm edges) and an outer vertex 3 mm outside a flank next to the ridge:
+    its nearest inner vertex is on the ridge, whose normal points up, so the vertex test (L-Coll) calls it behind
+    the layer; the closest point on the triangles is on the flank, 3 mm below it: no collision."""
+    from scipy.spatial import cKDTree
+
+    from smln.geometry import vertex_normals
+    from smln.metrics import surface_layer_penetration
+
+    h = 0.035
+    xs, ys = np.array([-2, -1, 0, 1, 2]) * h, np.arange(5) * h
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    inner = np.stack([gx.ravel(), gy.ravel(), -np.abs(gx.ravel())], axis=1)
+    n_y = len(ys)
+    quads = [(i * n_y + j, (i + 1) * n_y + j, (i + 1) * n_y + j + 1, i * n_y + j + 1)
+             for i in range(len(xs) - 1) for j in range(n_y - 1)]
+    inner_f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    p = np.array([[0.012, 2 * h, -0.012 + 3e-3 * math.sqrt(2)]])  # 3 mm outside the x > 0 flank
+    x, faces, li = _two_layers(inner, inner_f, p, np.zeros((0, 3), np.int64))
+    # the vertex test: nearest inner vertex and its normal
+    normals = vertex_normals(torch.as_tensor(inner, dtype=torch.float32), torch.as_tensor(inner_f)).numpy()
+    _, j = cKDTree(inner).query(p[0])
+    assert np.dot(p[0] - inner[j], normals[j]) < 0  # L-Coll's test fires
+    assert not surface_layer_penetration(x, faces, li)[-1]  # the surface test does not
+    p_in = np.array([[0.012, 2 * h, -0.012 - 3e-3 * math.sqrt(2)]])  # 3 mm inside the flank: a real collision
+    assert surface_layer_penetration(*_two_layers(inner, inner_f, p_in, np.zeros((0, 3), np.int64)))[-1]
+
+
+def test_surface_h_coll_closed_body():
+    from smln.metrics import surface_h_coll
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(400, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = np.where(np.arange(400) < 100, 0.19, 0.21)  # 100 of 400 points 1 cm inside, the rest 1 cm outside
+    assert surface_h_coll(d * r[:, None], v, f) == pytest.approx(25.0)
