@@ -15,10 +15,12 @@ Prints JSON (and writes it with ``--json OUT``), including the 1-minute load ave
 machine is shared: compare medians taken at similar load).
 
     python bench/rollout_speed.py [--json OUT] [--repeats R] [--threads 1 2] [--synthetic]
-                                   [--precision float32 bfloat16]
+                                   [--precision float32 bfloat16] [--compile]
 
 With ``--precision bfloat16`` (default on CPUs with AMX / AVX512-BF16) the inference rows are repeated with the
-processor in bfloat16 (:mod:`smln.model.precision`) under ``inference_bfloat16``.
+processor in bfloat16 (:mod:`smln.model.precision`) under ``inference_bfloat16``; with ``--compile`` once more per
+precision with the processor through ``torch.compile`` (:mod:`smln.model.compiled`) under ``inference_compiled`` /
+``inference_bfloat16_compiled``.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from smln.geometry import set_threads, vertex_normals
 from smln.losses import BodyStep, ClothRest, layer_pairs, total_loss
 from smln.metrics import frame_metrics
 from smln.model import SMLN, SMLNConfig
+from smln.model.compiled import with_compiled_processor
 from smln.model.precision import native_bfloat16, with_processor_dtype
 from smln.rollout import rollout
 
@@ -101,8 +104,10 @@ def _skinned(scene: Scene, n: int) -> torch.Tensor:
     return lbs(c.rest_vertices.float(), c.skin_indices, c.skin_weights, torch.as_tensor(scene.transforms[:n]).float())
 
 
-def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32") -> dict[str, Any]:
-    """ms/frame of real rollout frames, and per-stage medians on one frame's state (processor in ``precision``)."""
+def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32", compiled: bool = False
+              ) -> dict[str, Any]:
+    """ms/frame of real rollout frames, and per-stage medians on one frame's state (processor in ``precision``,
+    through torch.compile if ``compiled``: the compilation falls in the warm-up frame and the first forward)."""
     model.eval()
     frames = repeats + 4
     ms = []
@@ -110,7 +115,7 @@ def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32
     # an untrained model strains the cloth: thresholds off so every frame takes the normal path (a rejected
     # frame would compute its metrics twice); fallback only guards against non-finite positions
     for fr in rollout(model, scene.cloth, scene, scene.faces, num_frames=frames, fallback=True,
-                      max_distance=1e9, max_strain=1e9, precision=precision):
+                      max_distance=1e9, max_strain=1e9, precision=precision, compiled=compiled):
         t = time.perf_counter()
         if fr.index >= 3:  # frames 0, 1 are skinned; frame 2 warms up
             ms.append(1e3 * (t - t_prev))
@@ -123,6 +128,8 @@ def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32
     faces_np = np.asarray(scene.faces, dtype=np.int64)
     faces_t = torch.as_tensor(faces_np)
     model = with_processor_dtype(model, precision)
+    if compiled:
+        model = with_compiled_processor(model)
 
     def build_graph() -> Any:  # the rollout computes the body normals per step too (timed with the build)
         normals = vertex_normals(body[2], faces_t) if topo.body_normals else None
@@ -143,6 +150,7 @@ def inference(model: SMLN, scene: Scene, repeats: int, precision: str = "float32
     return {
         "scene": scene.name,
         "precision": precision,
+        "compiled": compiled,
         "layers": scene.cloth.num_layers,
         "vertices": scene.cloth.num_vertices,
         "body_vertices": int(body.shape[1]),
@@ -196,6 +204,9 @@ def main() -> None:
     ap.add_argument("--train-vertices", type=int, default=1500, help="--synthetic: training outfit size")
     ap.add_argument("--precision", nargs="+", choices=["float32", "bfloat16"],
                     help="inference precisions (default: float32, plus bfloat16 on CPUs with native bfloat16)")
+    ap.add_argument("--compile", action="store_true",
+                    help="also time every inference precision with the processor through torch.compile "
+                         "(rows inference_compiled / inference_bfloat16_compiled; smln.model.compiled)")
     args = ap.parse_args()
     precisions = args.precision or (["float32", "bfloat16"] if native_bfloat16() else ["float32"])
     torch.manual_seed(0)
@@ -222,6 +233,11 @@ def main() -> None:
             out[f"threads_{threads}"]["inference_bfloat16"] = [
                 inference(model, s, args.repeats, "bfloat16") for s in infer
             ]
+        if args.compile:
+            for prec in precisions:
+                key = "inference_compiled" if prec == "float32" else f"inference_{prec}_compiled"
+                out[f"threads_{threads}"][key] = [inference(model, s, args.repeats, prec, compiled=True)
+                                                  for s in infer]
     out["load_after"] = round(os.getloadavg()[0], 2)
     text = json.dumps(out, indent=2)
     print(text)
