@@ -253,3 +253,17 @@ def test_total_loss_two_layers_on_body():
     loss, _ = total_loss(x, x, x_next, step, rest, LossWeights(stretch=0, bending=0, repulsion=0))
     loss.backward()
     assert (x_next.grad[:5] == 0).all() and (x_next.grad[5:] != 0).any()
+
+
+def test_total_loss_uses_the_collision_clearance_of_the_weights():
+    s = trimesh.creation.icosphere(subdivisions=4)
+    body = torch.as_tensor(s.vertices, dtype=torch.float32)
+    v, f = grid(2, size=0.01)
+    rest = ClothRest.from_cloth(make_cloth([(v, f)]))
+    x = body[:4] / body[:4].norm(dim=-1, keepdim=True) * 1.004  # 4 mm outside the unit sphere
+    step = BodyStep.from_vertices(body, body, torch.as_tensor(s.faces))
+    only = dict(stretch=0, bending=0, gravity=0, friction=0, repulsion=0, inertia=0)
+    _, default = total_loss(x, x, x, step, rest, LossWeights(**only))
+    _, wide = total_loss(x, x, x, step, rest, LossWeights(**only, collision_eps=6e-3))
+    assert default["collision"] == 0.0  # outside the 3 mm clearance
+    assert math.isclose(wide["collision"], 4 * 0.002**3, rel_tol=3e-2)  # 2 mm inside a 6 mm clearance

@@ -9,7 +9,7 @@ import torch
 from smln.cloth import DT
 from smln.geometry import PointTree, build_tree, coordinate_major, nearest_vertices, vertex_normals, vertex_normals_cm
 from smln.losses.bending import bending_energy
-from smln.losses.collision import collision_energy
+from smln.losses.collision import COLLISION_EPS, collision_energy
 from smln.losses.friction import friction_energy
 from smln.losses.gravity import gravity_energy
 from smln.losses.inertia import inertia_energy
@@ -39,6 +39,8 @@ class LossWeights:
     repulsion: float = 1e3
     inertia: float = 1.0
     collision: float = 1e4
+    collision_eps: float = COLLISION_EPS
+    """Clearance of the body penalty, meters (:data:`smln.losses.collision.COLLISION_EPS`, 3 mm)."""
 
     @classmethod
     def training(cls) -> LossWeights:
@@ -128,7 +130,8 @@ def total_loss(
     if w.collision or w.friction:
         idx, _ = nearest_vertices(x_next, tree=body.tree_next)
         if w.collision:
-            terms["collision"] = collision_energy(x_next, body.next, body.normals_next, rest, idx=idx)
+            terms["collision"] = collision_energy(x_next, body.next, body.normals_next, rest, idx=idx,
+                                                   eps=w.collision_eps)
         if w.friction:
             terms["friction"] = friction_energy(
                 x_cur, x_next, body.cur, body.next, body.normals_next, rest, idx=idx
