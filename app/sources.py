@@ -177,9 +177,11 @@ class Catalog:
         builder: tuple[Callable[[str, str], Cloth], list[tuple[str, str]]] | None = None,
         edge_length: float | None = None,
         precision: str = "float32",
+        compiled: bool = False,
     ) -> None:
         self.checkpoint_dir = None if checkpoint_dir is None else Path(checkpoint_dir)
         self.precision = precision  # the models' processor precision (smln.model.precision)
+        self.compiled = compiled  # the models' processor through torch.compile (smln.model.compiled)
         self.uploads = uploads
         self.device = device
         self.max_frames = max_frames
@@ -274,7 +276,8 @@ class Catalog:
         proj = scenario.setting.projection
         return rollout(self.model(variant), scenario.cloth, scenario.sequence, scenario.body_faces,
                        num_frames=scenario.num_frames, device=self.device, fallback=True, precision=self.precision,
-                       project_body=proj in ("body", "body+layers"), project_layers=proj == "body+layers")
+                       compiled=self.compiled, project_body=proj in ("body", "body+layers"),
+                       project_layers=proj == "body+layers")
 
 
 __all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario", "Setting"]

@@ -170,3 +170,23 @@ def test_camera_centre_does_not_jump_when_a_variant_lags():
     np.testing.assert_allclose(all_there, body.mean(axis=0), atol=1e-12)
     np.testing.assert_allclose(one_there, all_there, atol=1e-12)
     assert view.centre({"full": None}) is None
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_catalog_passes_the_compile_option_to_its_rollouts(monkeypatch, compiled):
+    """``launch_viewer.py --compile`` reaches every model rollout of the catalog (skinning has no model)."""
+    import app.sources as sources
+
+    seen = {}
+
+    def fake_rollout(model, cloth, sequence, faces, **kw):
+        seen.update(kw)
+        return iter(())
+
+    monkeypatch.setattr(sources, "rollout", fake_rollout)
+    cat = sources.Catalog("checkpoints", max_frames=4, precision="float32", compiled=compiled)
+    if "full" not in cat.checkpoints:
+        pytest.skip("no shipped checkpoint")
+    scenario = cat.prepare(Setting(*SCENE))
+    list(cat.frames("full", scenario))
+    assert seen["compiled"] is compiled and seen["precision"] == "float32"
