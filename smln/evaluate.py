@@ -26,7 +26,9 @@ from smln.metrics import frame_metrics, sequence_metrics
 from smln.rollout import RolloutFrame
 
 TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "offset_rms", "ms_model",
-              "fallback")
+              "fallback", "l_coll_surface", "h_coll_surface")
+SURFACE_KEYS = ("l_coll_surface", "h_coll_surface")
+"""Point-to-triangle L-Coll / H-Coll (%), with ``--surface-metrics`` (:func:`smln.metrics.surface_l_coll`)."""
 
 
 @dataclass
@@ -76,14 +78,24 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
 
 
 def summarise(
-    frames: Iterable[RolloutFrame], skinned: torch.Tensor | None = None
+    frames: Iterable[RolloutFrame], skinned: torch.Tensor | None = None, surface_scene=None
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """Sequence metrics of a method's frames; with ``skinned`` (T, V, 3) also ``offset_rms``, the RMS distance
-    (m) of the garment from its rigidly skinned position: how much it moves with its own dynamics."""
+    (m) of the garment from its rigidly skinned position: how much it moves with its own dynamics; with a
+    ``surface_scene`` (its cloth's faces and layers, its body's faces) also the point-to-triangle
+    ``l_coll_surface`` / ``h_coll_surface`` (%, ~80 ms per frame on the 24k-face body)."""
+    from smln.metrics import surface_h_coll, surface_l_coll
+
     rows = []
+    if surface_scene is not None:
+        faces, layers = surface_scene.cloth.faces.numpy(), surface_scene.cloth.layer_index.numpy()
+        body_faces = surface_scene.body.faces.numpy()
     for fr in frames:
         m = dict(fr.metrics)
         m["fallback"] = float(fr.fallback)
+        if surface_scene is not None:
+            m["l_coll_surface"] = surface_l_coll(fr.garment_positions, faces, layers)
+            m["h_coll_surface"] = surface_h_coll(fr.garment_positions, fr.body_vertices, body_faces)
         if skinned is not None:
             d = fr.garment_positions - skinned[fr.index].numpy()
             m["offset_rms"] = float(np.sqrt((d**2).sum(-1).mean()))
@@ -110,6 +122,7 @@ def evaluate(
     project_layers: bool = False,
     precision: str = "float32",
     compiled: bool = False,
+    surface_metrics: bool = False,
 ) -> list[RunResult]:
     """Run every method on every outfit × clip.
 
@@ -119,6 +132,7 @@ def evaluate(
         project_body, project_layers: the models' rollouts use the collision projection (smln.projection).
         precision: the models' processor precision (smln.model.precision).
         compiled: the models' processor runs through torch.compile (smln.model.compiled).
+        surface_metrics: also the point-to-triangle L-Coll / H-Coll (:data:`SURFACE_KEYS`).
     """
     from smln.garments import outfit_split
     from smln.motion import load_body_sequence
@@ -135,7 +149,7 @@ def evaluate(
                 kind = name if model is None else "model"
                 frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision,
                                           compiled)
-                seq_metrics, rows = summarise(frames_it, scene.skinned)
+                seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None)
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
                           f"L-Coll {seq_metrics['l_coll']:.2f}% H-Coll {seq_metrics['h_coll']:.2f}% "
@@ -166,14 +180,18 @@ def aggregate(results: list[RunResult], key: str = "method") -> dict[str, dict[s
 def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
     """Markdown table of :func:`aggregate` rows (keys ``method`` or ``method | outfit``)."""
     per_outfit = any(" | " in k for k in rows)
+    surface = any(np.isfinite(r.get(k, np.nan)) for r in rows.values() for k in SURFACE_KEYS)
     first = "| method | outfit " if per_outfit else "| method "
-    head = (first + "| Bend ↓ | Collision loss (mm²) ↓ | L-Coll % ↓ | H-Coll % ↓ | strain mean % | strain max % "
-            "| offset from skinning (cm RMS) | ms/frame | fallback frames | frames |")
-    lines = [f"**{title}**", "", head, "|" + "---|" * (12 if per_outfit else 11)]
+    head = (first + "| Bend ↓ | Collision loss (mm²) ↓ | L-Coll % ↓ | H-Coll % ↓ "
+            + ("| L-Coll surf. % ↓ | H-Coll surf. % ↓ " if surface else "")
+            + "| strain mean % | strain max % | offset from skinning (cm RMS) | ms/frame | fallback frames | frames |")
+    lines = [f"**{title}**", "", head, "|" + "---|" * ((12 if per_outfit else 11) + (2 if surface else 0))]
     for name, r in rows.items():
+        extra = f"| {r['l_coll_surface']:.2f} | {r['h_coll_surface']:.2f} " if surface else ""
         lines.append(
             f"| {name} | {r['bend']:.4f} | {r['collision_loss'] * 1e6:.3f} | {r['l_coll']:.2f} | {r['h_coll']:.2f} "
-            f"| {100 * r['strain_mean']:.2f} | {100 * r['strain_max']:.1f} | {100 * r['offset_rms']:.2f} "
+            + extra
+            + f"| {100 * r['strain_mean']:.2f} | {100 * r['strain_max']:.1f} | {100 * r['offset_rms']:.2f} "
             f"| {r['ms_model']:.0f} "
             f"| {int(r['fallback_frames'])} | {int(r['frames'])} |"
         )
@@ -242,6 +260,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     p.add_argument("--frames", type=int, help="frames per clip (default: the whole clip)")
     p.add_argument("--edge-length", type=float, default=0.02)
     p.add_argument("--no-skinning", action="store_true", help="leave out the skinning-only row")
+    p.add_argument("--surface-metrics", action="store_true",
+                   help="also the point-to-triangle L-Coll / H-Coll (smln.metrics.behind_surface; ~80 ms per frame)")
     p.add_argument("--solver", action="store_true", help="add the reference L-BFGS solver (slow)")
     p.add_argument("--device", default="cpu")
     add_model_rollout_options(p)
@@ -278,7 +298,7 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     motions = resolve_names(a.motions, "motions")
     results = evaluate(methods, outfits, motions, shape=a.shape, frames=a.frames, edge_length=a.edge_length,
                        device=a.device, project_body=a.project_body, project_layers=a.project_layers,
-                       precision=a.precision, compiled=a.compile)
+                       precision=a.precision, compiled=a.compile, surface_metrics=a.surface_metrics)
     report = make_report(results, outfits, motions, a.shape, a.frames)
     print(report)
     if a.markdown:

@@ -1,0 +1,43 @@
+"""``smln eval``: the tables of a short real evaluation, with the point-to-triangle collision columns."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHECKPOINT = Path(__file__).parents[1] / "checkpoints" / "full"
+
+
+@pytest.mark.slow
+def test_eval_with_surface_metrics(tmp_path):
+    from smln.data_sampling import make_scene
+    from smln.evaluate import main
+    from smln.metrics import surface_h_coll, surface_l_coll
+
+    if not (CHECKPOINT.with_suffix(".safetensors").exists() or CHECKPOINT.exists()):
+        pytest.skip("no shipped checkpoint")
+    md = tmp_path / "eval.md"
+    results = main(["--checkpoint", str(CHECKPOINT), "--outfits", "tshirt_jacket", "--motions", "05_01_walk",
+                    "--frames", "6", "--edge-length", "0.035", "--threads", "1", "--surface-metrics",
+                    "--markdown", str(md)])
+    by_method = {r.method: r for r in results}
+    assert set(by_method) == {"full", "skinning"}
+    for r in results:
+        assert 0.0 <= r.metrics["l_coll_surface"] <= 100.0 and 0.0 <= r.metrics["h_coll_surface"] <= 100.0
+        assert len(r.per_frame) == 6
+    # the skinning row's per-frame values are the metric functions on the skinned garment
+    scene = make_scene("tshirt_jacket", "female_average", "05_01_walk", edge_length=0.035, max_frames=6)
+    faces, layers = scene.cloth.faces.numpy(), scene.cloth.layer_index.numpy()
+    for t, row in enumerate(by_method["skinning"].per_frame):
+        x = scene.skinned[t].numpy()
+        assert row["l_coll_surface"] == pytest.approx(surface_l_coll(x, faces, layers))
+        assert row["h_coll_surface"] == pytest.approx(
+            surface_h_coll(x, scene.body.vertices[t].numpy(), scene.body.faces.numpy()))
+    text = md.read_text()
+    assert "L-Coll surf. %" in text and "H-Coll surf. %" in text
+    full_line = next(line for line in text.splitlines() if line.startswith("| full "))
+    cells = [c.strip() for c in full_line.strip("|").split("|")]
+    assert float(cells[5]) == pytest.approx(by_method["full"].metrics["l_coll_surface"], abs=0.006)
+    assert np.isfinite(float(cells[6]))
