@@ -285,7 +285,7 @@ def _compile_case():
 def test_compiled_processor_predicts_what_the_eager_one_does():
     import shutil
 
-    from smln.model.compiled import compiled_processor, with_compiled_processor
+    from smln.model.compiled import with_compiled_processor
 
     if not (shutil.which("g++") or shutil.which("c++")):
         pytest.skip("no C++ compiler: torch.compile's CPU backend cannot build (the eager fallback is tested below)")
@@ -294,7 +294,6 @@ def test_compiled_processor_predicts_what_the_eager_one_does():
     fast = with_compiled_processor(model)
     assert fast.processor is not model.processor and fast.node_encoder is model.node_encoder
     assert "processor" in dict(model.named_children()) and not hasattr(model.processor, "inner")  # untouched
-    assert compiled_processor(model.processor) is fast.processor  # one wrapper per processor: compiled once
     with torch.no_grad():
         p_eager, _, _ = model(g, topo)
         p_fast, _, _ = fast(g, topo)

@@ -15,12 +15,9 @@ from __future__ import annotations
 
 import copy
 import warnings
-import weakref
 
 import torch
 from torch import nn
-
-_COMPILED: weakref.WeakKeyDictionary[nn.Module, CompiledProcessor] = weakref.WeakKeyDictionary()
 
 
 class CompiledProcessor(nn.Module):
@@ -51,20 +48,14 @@ class CompiledProcessor(nn.Module):
         return self.inner(*args, **kwargs)
 
 
-def compiled_processor(processor: nn.Module) -> CompiledProcessor:
-    """The one :class:`CompiledProcessor` of ``processor`` (cached: repeated rollouts compile once)."""
-    wrapped = _COMPILED.get(processor)
-    if wrapped is None:
-        wrapped = CompiledProcessor(processor)
-        _COMPILED[processor] = wrapped
-    return wrapped
-
-
 def with_compiled_processor(model: nn.Module) -> nn.Module:
     """A shallow copy of the SMLN whose processor is compiled (all modules, the weights included, shared with
     ``model``, which is left as it was)."""
     fast = copy.copy(model)
     fast._modules = dict(model._modules)  # a new module table: replacing the processor leaves ``model`` intact
-    fast._modules["processor"] = compiled_processor(model.processor)
+    # a new wrapper per call is cheap: Dynamo keys its compiled code on the processor's code and guards, so a
+    # second wrapper (or a new bfloat16 copy of the processor) reuses the first compilation (measured: the
+    # second rollout's first step 13 ms instead of 8.6 s)
+    fast._modules["processor"] = CompiledProcessor(model.processor)
     fast.training = False
     return fast
