@@ -1,11 +1,13 @@
 """The viewer: ViewerApp logic without a browser, uploads, and a real-browser run (Playwright + Debian Chromium).
 
 The browser test is marked ``browser`` and skips cleanly when /usr/bin/chromium or playwright is missing.
-Screenshots land in docs/screenshots/.
+Screenshots land in the test's temporary directory, or in ``$SMLN_SCREENSHOTS`` when set (e.g. docs/screenshots to
+refresh the README's images): a test run leaves the working tree as it was.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import socket
 import threading
@@ -19,7 +21,7 @@ from app.sources import Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, UploadError, UploadStore
 
 ROOT = Path(__file__).resolve().parent.parent
-SHOTS = ROOT / "docs" / "screenshots"
+SHOTS_ENV = "SMLN_SCREENSHOTS"
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = [
     "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--disable-quic",
@@ -179,7 +181,8 @@ def test_viewer_in_chromium(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
     from app.server import ViewerApp
 
-    SHOTS.mkdir(parents=True, exist_ok=True)
+    shots = Path(os.environ.get(SHOTS_ENV) or tmp_path / "screenshots")
+    shots.mkdir(parents=True, exist_ok=True)
     ckpt = tiny_checkpoints(tmp_path / "ckpt")
     app = ViewerApp(port=free_port(), checkpoint_dir=ckpt, max_frames=30, variants=["skinning"])
     canvas_box = (0, 0, 1000, 900)  # the 3-D view left of the control panel
@@ -207,7 +210,7 @@ def test_viewer_in_chromium(tmp_path):
             second = _frame_number(page)
             assert second != first, "the frame counter did not advance while playing"
             time.sleep(1.0)
-            one = SHOTS / "viewer_single.png"
+            one = shots / "viewer_single.png"
             page.screenshot(path=str(one))
             assert _coloured_fraction(one, canvas_box) > 0.003, "no garment pixels in the 3-D view"
 
@@ -223,7 +226,7 @@ def test_viewer_in_chromium(tmp_path):
             assert app.display.show_layer_pen is False
             page.get_by_role("checkbox", name=re.compile("Inter-layer penetrations")).check()
             time.sleep(3.0)
-            three = SHOTS / "viewer_variants.png"
+            three = shots / "viewer_variants.png"
             page.screenshot(path=str(three))
             assert _coloured_fraction(three, canvas_box) > 0.003
             assert len(app.scene.views) == 3
