@@ -24,7 +24,8 @@ H-Coll % (mean over frames; LayersNet's nearest-vertex tests), the same against 
 layers' / body's triangles (``surf.``, :func:`smln.metrics.behind_surface`), mean / max edge strain, and the
 mean vertex distance to the physics result (mm, over frames and vertices). All statistics use frames 2 .. N-1
 (frames 0-1 are the skinned initial state of the network rollouts). Plots of H-Coll, L-Coll and the distance to
-physics over time go to ``docs/benchmarks/*.png``.
+physics over time go to ``benchmarks/*.png`` beside the ``--markdown`` report (or the ``--json``; else
+``runs/benchmarks``).
 """
 
 from __future__ import annotations
@@ -304,7 +305,9 @@ def main(argv: list[str] | None = None) -> dict:
         models[name], _ = load_checkpoint(ck)
         sources[variant] = str(ck)
         print(f"{name}: {ck}", flush=True)
-    plot_dir = Path(a.markdown).parent / "benchmarks" if a.markdown else Path("docs/benchmarks")
+    # plots beside the report (or the JSON); never into docs/ unless the report goes there
+    out_file = a.markdown or a.json
+    plot_dir = Path(out_file).parent / "benchmarks" if out_file else Path("runs/benchmarks")
     try:
         import newton
 
