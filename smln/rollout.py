@@ -114,7 +114,7 @@ def rollout(
         precision: "float32" or "bfloat16" (the processor in bfloat16, :mod:`smln.model.precision`; ~1.4x
             faster network on CPUs with AMX / AVX512-BF16, slower elsewhere).
         compiled: run the processor through ``torch.compile`` (:mod:`smln.model.compiled`; 12-15 % faster steps
-            on CPU after a one-off compilation of 30-80 s on the first step).
+            on CPU after a one-off compilation of 10-80 s on the first step).
 
     Yields:
         :class:`RolloutFrame` for frames 0 .. num_frames-1.

@@ -3,7 +3,7 @@
 Inductor fuses the processor's element-wise work (bias adds, ReLUs, LayerNorms, residual adds) into C++ loops
 around the matrix products, which the eager CPU path runs as separate passes over the (E, L) edge latents.
 Measured on the full checkpoint, tshirt_jacket at 3.5 cm (1,637 vertices), one thread: 12-15 % less time per
-step (docs/BENCHMARKS.md, session 6). The price is a one-off compilation of about 30-80 s on the first step
+step (docs/BENCHMARKS.md, session 6). The price is a one-off compilation of about 10-80 s on the first step
 (shapes are marked dynamic, so later frames, clips and outfits with other edge counts reuse it; Inductor also
 caches on disk), which is why it is opt-in (``--compile``).
 
