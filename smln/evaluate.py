@@ -242,7 +242,7 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
                    help="processor precision (bfloat16: faster on CPUs with AMX / AVX512-BF16; smln.model.precision)")
     p.add_argument("--compile", action="store_true",
                    help="run the processor through torch.compile: 12-15%% faster steps on CPU after a one-off "
-                        "30-80 s compilation (smln.model.compiled)")
+                        "10-80 s compilation (smln.model.compiled)")
 
 
 def cli_main(args: argparse.Namespace) -> None:
