@@ -204,6 +204,18 @@ def test_repulsion_cascade_lets_the_outer_layer_see_the_pushed_middle_layer():
     assert torch.allclose(a2, ref, atol=1e-6)
 
 
+def _one_step_graph(model):
+    """(topology, graph) of one step of a small two-layer tube on a capsule body, for inference comparisons."""
+    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
+    topo = model.make_topology(cloth)
+    x = cloth.rest_vertices
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    body = torch.as_tensor(bv)
+    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004,
+                   body_normals_next=vertex_normals(body, torch.as_tensor(bf)))
+    return topo, g
+
+
 def test_bfloat16_processor_is_close_and_leaves_the_model_alone():
     """The bfloat16 processor copy predicts nearly the same accelerations and shares/keeps the float32 weights."""
     from smln.model.precision import with_processor_dtype
@@ -213,13 +225,7 @@ def test_bfloat16_processor_is_close_and_leaves_the_model_alone():
     low = with_processor_dtype(model, "bfloat16")
     assert low.node_encoder is model.node_encoder and low.processor is not model.processor
     assert next(model.processor.parameters()).dtype == torch.float32  # the original is untouched
-    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
-    topo = model.make_topology(cloth)
-    x = cloth.rest_vertices
-    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
-    body = torch.as_tensor(bv)
-    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004,
-                   body_normals_next=vertex_normals(body, torch.as_tensor(bf)))
+    topo, g = _one_step_graph(model)
     with torch.no_grad():
         p32, _, _ = model(g, topo)
         p16, _, _ = low(g, topo)
@@ -271,14 +277,7 @@ def test_widen_body_edges_keeps_the_function(scene):
 
 def _compile_case():
     model = SMLN(small_config()).eval()
-    cloth = tube_outfit(radii=(0.12, 0.126), n_around=16, n_rings=6)
-    topo = model.make_topology(cloth)
-    x = cloth.rest_vertices
-    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
-    body = torch.as_tensor(bv)
-    g = topo.build(x, x + 0.002, body, body + 0.001, x + 0.004,
-                   body_normals_next=vertex_normals(body, torch.as_tensor(bf)))
-    return model, topo, g
+    return (model, *_one_step_graph(model))
 
 
 @pytest.mark.slow
