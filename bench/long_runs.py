@@ -24,11 +24,15 @@ import torch
 from scipy.spatial import cKDTree
 
 from smln.geometry import set_threads
+from smln.rollout import MAX_BODY_DISTANCE as ROLLOUT_MAX_BODY_DISTANCE
+from smln.rollout import MAX_SKIN_DISTANCE as ROLLOUT_MAX_SKIN_DISTANCE
 
 MAX_BODY_DISTANCE = 0.5
 """Stated bound: no garment vertex farther than this from the nearest body vertex, m."""
-MAX_SKIN_DISTANCE = 0.4
-"""The rollout's own divergence bound (the default of ``smln.rollout.rollout(max_distance=...)``), m."""
+MAX_SKIN_DISTANCE = ROLLOUT_MAX_SKIN_DISTANCE
+"""The rollout's own divergence bound on the distance to skinning (``smln.rollout.rollout(max_distance=...)``), m.
+The rollout also bounds the distance to the body (``max_body_distance``), below :data:`MAX_BODY_DISTANCE`."""
+assert ROLLOUT_MAX_BODY_DISTANCE < MAX_BODY_DISTANCE  # the rollout's guard keeps the stated bound
 
 
 @dataclass

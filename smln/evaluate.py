@@ -23,7 +23,7 @@ from smln.data_sampling import make_scene
 from smln.geometry import set_threads
 from smln.losses import ClothRest
 from smln.metrics import frame_metrics, sequence_metrics
-from smln.rollout import RolloutFrame
+from smln.rollout import MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, RolloutFrame
 
 TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "offset_rms", "ms_model",
               "fallback", "l_coll_surface", "h_coll_surface")
@@ -59,11 +59,12 @@ def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
 
 
 def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu", project_body: bool = False,
-                  project_layers: bool = False, precision: str = "float32", compiled: bool = False
-                  ) -> Iterator[RolloutFrame]:
+                  project_layers: bool = False, precision: str = "float32", compiled: bool = False,
+                  guards: dict[str, float] | None = None) -> Iterator[RolloutFrame]:
     """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model (optionally with the
     collision projection of :mod:`smln.projection` after each step, the processor in ``precision`` and compiled,
-    :mod:`smln.model.compiled`)."""
+    :mod:`smln.model.compiled`; ``guards``: divergence bounds passed to :func:`smln.rollout.rollout`, e.g.
+    ``{"max_distance": 0.4, "max_body_distance": 0.45}``)."""
     if method == "skinning":
         return skinning_frames(scene, num_frames)
     if method == "solver":
@@ -74,7 +75,7 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
 
     return rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=num_frames, device=device,
                    fallback=True, project_body=project_body, project_layers=project_layers, precision=precision,
-                   compiled=compiled)
+                   compiled=compiled, **(guards or {}))
 
 
 def summarise(
@@ -123,6 +124,7 @@ def evaluate(
     precision: str = "float32",
     compiled: bool = False,
     surface_metrics: bool = False,
+    guards: dict[str, float] | None = None,
 ) -> list[RunResult]:
     """Run every method on every outfit × clip.
 
@@ -133,6 +135,7 @@ def evaluate(
         precision: the models' processor precision (smln.model.precision).
         compiled: the models' processor runs through torch.compile (smln.model.compiled).
         surface_metrics: also the point-to-triangle L-Coll / H-Coll (:data:`SURFACE_KEYS`).
+        guards: the models' divergence bounds (:func:`method_frames`; None: the rollout's defaults).
     """
     from smln.garments import outfit_split
     from smln.motion import load_body_sequence
@@ -148,7 +151,7 @@ def evaluate(
                 t0 = time.time()
                 kind = name if model is None else "model"
                 frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision,
-                                          compiled)
+                                          compiled, guards)
                 seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None)
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
@@ -243,6 +246,20 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compile", action="store_true",
                    help="run the processor through torch.compile: 12-15%% faster steps on CPU after a one-off "
                         "10-80 s compilation (smln.model.compiled)")
+    p.add_argument("--max-skin-distance", type=float, default=MAX_SKIN_DISTANCE, metavar="M",
+                   help="a frame with a garment vertex farther than M meters from its skinned place falls back to "
+                        "skinning (default %(default)s)")
+    p.add_argument("--max-body-distance", type=float, default=MAX_BODY_DISTANCE, metavar="M",
+                   help="a frame with a garment vertex farther than M meters from the body falls back to skinning "
+                        "(default %(default)s)")
+
+
+def rollout_guards(a: argparse.Namespace) -> dict[str, float]:
+    """The divergence bounds of :func:`add_model_rollout_options` as :func:`smln.rollout.rollout` keywords."""
+    for flag, value in (("--max-skin-distance", a.max_skin_distance), ("--max-body-distance", a.max_body_distance)):
+        if not value > 0:
+            raise ValueError(f"{flag} must be a positive distance in meters, got {value}")
+    return {"max_distance": a.max_skin_distance, "max_body_distance": a.max_body_distance}
 
 
 def cli_main(args: argparse.Namespace) -> None:
@@ -289,6 +306,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
                                                                   ("layers", a.project_layers)) if on) + ")"
         if a.precision != "float32":
             name += f" [{a.precision}]"
+        if (a.max_skin_distance, a.max_body_distance) != (MAX_SKIN_DISTANCE, MAX_BODY_DISTANCE):
+            name += f" [guard skin {a.max_skin_distance:g} m, body {a.max_body_distance:g} m]"
         methods[name] = model
     if not a.no_skinning:
         methods["skinning"] = None
@@ -298,7 +317,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     motions = resolve_names(a.motions, "motions")
     results = evaluate(methods, outfits, motions, shape=a.shape, frames=a.frames, edge_length=a.edge_length,
                        device=a.device, project_body=a.project_body, project_layers=a.project_layers,
-                       precision=a.precision, compiled=a.compile, surface_metrics=a.surface_metrics)
+                       precision=a.precision, compiled=a.compile, surface_metrics=a.surface_metrics,
+                       guards=rollout_guards(a))
     report = make_report(results, outfits, motions, a.shape, a.frames)
     print(report)
     if a.markdown:

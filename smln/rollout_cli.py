@@ -16,7 +16,7 @@ def main(args: argparse.Namespace) -> None:
 
 def run(argv: list[str] | None = None) -> Path:
     from smln.data_sampling import make_scene
-    from smln.evaluate import add_model_rollout_options, method_frames
+    from smln.evaluate import add_model_rollout_options, method_frames, rollout_guards
     from smln.export import save_rollout_npz
 
     p = argparse.ArgumentParser(prog="smln rollout", description=__doc__)
@@ -52,7 +52,7 @@ def run(argv: list[str] | None = None) -> Path:
     if (a.project_body or a.project_layers) and kind != "model":
         raise ValueError("--project-body / --project-layers apply to a --checkpoint rollout")
     frames = list(method_frames(kind, model, scene, scene.num_frames, a.device, a.project_body, a.project_layers,
-                                a.precision, a.compile))
+                                a.precision, a.compile, rollout_guards(a)))
     save_rollout_npz(out, frames, scene.cloth, scene.body.faces)
     fallback = sum(f.fallback for f in frames)
     print(f"wrote {out}: {len(frames)} frames, {scene.cloth.num_vertices} garment vertices, "

@@ -41,3 +41,22 @@ def test_eval_with_surface_metrics(tmp_path):
     cells = [c.strip() for c in full_line.strip("|").split("|")]
     assert float(cells[5]) == pytest.approx(by_method["full"].metrics["l_coll_surface"], abs=0.006)
     assert np.isfinite(float(cells[6]))
+
+
+def test_eval_divergence_guard_flags(tmp_path):
+    """``--max-body-distance``: a 1 mm bound makes every predicted frame fall back to skinning (a jacket is
+    centimetres off the body somewhere), the skinned frames 0-1 are kept, and the row's name says which bounds ran;
+    a non-positive bound is refused."""
+    from smln.evaluate import main
+
+    if not (CHECKPOINT.with_suffix(".safetensors").exists() or CHECKPOINT.exists()):
+        pytest.skip("no shipped checkpoint")
+    common = ["--checkpoint", str(CHECKPOINT), "--outfits", "tshirt_jacket", "--motions", "05_01_walk", "--frames",
+              "5", "--edge-length", "0.035", "--threads", "1", "--no-skinning"]
+    (tight,) = main(common + ["--max-body-distance", "0.001"])
+    assert tight.method == "full [guard skin 0.4 m, body 0.001 m]"
+    assert [r["fallback"] for r in tight.per_frame] == [0.0, 0.0, 1.0, 1.0, 1.0]
+    (default,) = main(common)
+    assert default.method == "full" and default.metrics["fallback_frames"] == 0.0
+    with pytest.raises(ValueError, match="--max-skin-distance must be a positive distance"):
+        main(common + ["--max-skin-distance", "0"])

@@ -78,6 +78,36 @@ def test_divergence_fallback_to_skinning(scene):
     np.testing.assert_allclose(frames[3].garment_positions, skinned[3].numpy(), atol=1e-6)
 
 
+def drifting_model(acceleration: float) -> SMLN:
+    """A model that accelerates every free vertex by ``acceleration`` m/frame^2 along (1, 1, 1)/sqrt(3)."""
+    m = small_model(use_repulsion_layer=False)
+    with torch.no_grad():
+        m.decoder[-1].weight.zero_()
+        m.decoder[-1].bias.fill_(1.0)
+        m.output_scale.fill_(acceleration / 3**0.5)
+    return m
+
+
+def test_body_distance_guard(scene):
+    """The guard on the distance to the body fires on its own (other bounds off) and names the cause; the
+    per-frame ``body_distance_max`` is the nearest-body-vertex distance computed independently."""
+    from scipy.spatial import cKDTree
+
+    cloth, seq, bf = scene
+    model = drifting_model(0.02)  # free vertices 2, 6, 12 cm off after the first 3 predicted steps
+    loose = dict(max_distance=1e9, max_strain=1e9)
+    with pytest.raises(RolloutError, match=r"frame \d+: .* m from the body \(> 0.08 m\)"):
+        list(rollout(model, cloth, seq, bf, num_frames=8, max_body_distance=0.08, **loose))
+    frames = list(rollout(model, cloth, seq, bf, num_frames=8, max_body_distance=1e9, **loose))
+    assert not any(f.fallback for f in frames)
+    dist = [float(cKDTree(f.body_vertices).query(f.garment_positions)[0].max()) for f in frames]
+    np.testing.assert_allclose([f.metrics["body_distance_max"] for f in frames], dist, rtol=1e-5)
+    assert dist[-1] > 0.08 > dist[1]  # the bound of the first call was crossed, and not at the start
+    fb = list(rollout(model, cloth, seq, bf, num_frames=8, max_body_distance=0.08, fallback=True, **loose))
+    first = next(i for i, f in enumerate(fb) if f.fallback)
+    assert dist[first] > 0.08 and all(d <= 0.08 for d in dist[:first])
+
+
 def _still_model() -> SMLN:
     """A model whose decoder predicts exactly zero acceleration and has no repulsion layer: x_{t+1} = x_t + v_t."""
     m = small_model(use_repulsion_layer=False)
