@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from smln.geometry import set_threads
 from smln.rollout import MAX_BODY_DISTANCE as ROLLOUT_MAX_BODY_DISTANCE
@@ -74,7 +73,6 @@ def long_run(model: torch.nn.Module, outfit: str, clip: str, shape: str = "femal
     scene = make_scene(outfit, shape, clip, edge_length=edge_length)
     n = scene.num_frames if num_frames is None else min(num_frames, scene.num_frames)
     skinned = scene.skinned.numpy() if isinstance(scene.skinned, torch.Tensor) else np.asarray(scene.skinned)
-    body = scene.body.vertices.numpy()
     rows: list[dict[str, float]] = []
     fallback = nan = 0
     body_dist = skin_dist = 0.0
@@ -86,7 +84,7 @@ def long_run(model: torch.nn.Module, outfit: str, clip: str, shape: str = "femal
         finite = bool(np.isfinite(x).all())
         nan += int(not finite)
         if finite:
-            body_dist = max(body_dist, float(cKDTree(body[fr.index]).query(x)[0].max()))
+            body_dist = max(body_dist, fr.metrics["body_distance_max"])  # nearest body vertex, the rollout's query
             d = float(np.linalg.norm(x - skinned[fr.index], axis=1).max())
             if fr.fallback:
                 fallback_ok &= d < 1e-4
