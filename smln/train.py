@@ -76,6 +76,7 @@ class TrainConfig:
     validation_motion: str = "06_01_walk"
     log_every: int = 10
     threads: int = 1
+    compile: bool = False  # the processor through torch.compile (forward and backward; smln.model.compiled)
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
     model: dict[str, Any] = field(default_factory=dict)
@@ -168,10 +169,14 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.model = SMLN(cfg.model_config()).to(self.device)
         self.net: torch.nn.Module = self.model
+        if cfg.compile:  # a shallow copy sharing the weights: self.model (saved, averaged) keeps its module tree
+            from smln.model.compiled import with_compiled_processor
+
+            self.net = with_compiled_processor(self.model, training=True)
         if self.distributed:
             from torch.nn.parallel import DistributedDataParallel
 
-            self.net = DistributedDataParallel(self.model, find_unused_parameters=True)
+            self.net = DistributedDataParallel(self.net, find_unused_parameters=True)
         # foreach: one fused kernel per step over all parameter tensors instead of a Python loop over them (CPU too)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, foreach=True)
         # exponential moving average of the weights (decay 0.999: ~1k-step horizon); validation and the saved
@@ -501,6 +506,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                    help="with --init-from: the lr schedule starts again at --lr from the checkpoint's step "
                         "(a warm restart; the step count and the rollout-length schedule go on)")
     p.add_argument("--threads", type=int)
+    p.add_argument("--compile", action="store_true", default=None,
+                   help="run the processor through torch.compile, forward and backward (13-18 %% faster steps on "
+                        "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--outfits", nargs="+")
     p.add_argument("--motions", nargs="+")
@@ -526,7 +534,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
-                      ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight")):
+                      ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
+                      ("compile", "compile")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

@@ -217,3 +217,21 @@ def test_lr_restart_records_the_origin_and_resumes_with_it(tmp_path):
     assert second.opt.param_groups[0]["lr"] == pytest.approx(second.learning_rate(second.step - 1))
     with pytest.raises(ValueError, match="needs --init-from"):
         train(["--out", str(tmp_path / "c"), "--max-steps", "1", "--lr-restart", *common])
+
+
+def test_compile_flag_wraps_only_the_trained_copy(tmp_path):
+    """--compile: the forward runs through a compiled processor sharing the weights; the saved model keeps its
+    own module tree (checkpoint keys unchanged). Nothing is compiled until the first step."""
+    from smln.model.compiled import CompiledProcessor
+    from smln.train import parse_args
+
+    cfg, _ = parse_args(["--out", str(tmp_path / "run"), "--compile", *TINY])
+    assert cfg.compile
+    trainer = Trainer(cfg, tmp_path / "run")
+    assert isinstance(trainer.net.processor, CompiledProcessor) and trainer.net.processor.for_training
+    assert trainer.net.processor.inner is trainer.model.processor
+    assert not any(k.startswith("processor.inner.") for k in trainer.model.state_dict())
+    assert {id(p) for p in trainer.net.parameters()} == {id(p) for p in trainer.model.parameters()}
+    default, _ = parse_args(["--out", str(tmp_path / "run2"), *TINY])
+    assert not default.compile and not isinstance(Trainer(default, tmp_path / "run2").net.processor,
+                                                   CompiledProcessor)
