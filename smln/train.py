@@ -506,6 +506,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                    help="with --init-from: the lr schedule starts again at --lr from the checkpoint's step "
                         "(a warm restart; the step count and the rollout-length schedule go on)")
     p.add_argument("--threads", type=int)
+    p.add_argument("--noise-std", type=float,
+                   help="σ of the Gaussian noise on the input positions, m (default 3e-3, HOOD's; session 8's 1e-3 "
+                        "run: 1.1 points less mean strain, 0.5 more L-Coll, docs/RESULTS.md)")
     p.add_argument("--compile", action="store_true", default=None,
                    help="run the processor through torch.compile, forward and backward (13-18 %% faster steps on "
                         "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
@@ -535,7 +538,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
-                      ("compile", "compile")):
+                      ("noise_std", "noise_std"), ("compile", "compile")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

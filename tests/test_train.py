@@ -225,13 +225,14 @@ def test_compile_flag_wraps_only_the_trained_copy(tmp_path):
     from smln.model.compiled import CompiledProcessor
     from smln.train import parse_args
 
-    cfg, _ = parse_args(["--out", str(tmp_path / "run"), "--compile", *TINY])
-    assert cfg.compile
+    cfg, _ = parse_args(["--out", str(tmp_path / "run"), "--compile", "--noise-std", "0.001", *TINY])
+    assert cfg.compile and cfg.noise_std == 0.001
     trainer = Trainer(cfg, tmp_path / "run")
     assert isinstance(trainer.net.processor, CompiledProcessor) and trainer.net.processor.for_training
     assert trainer.net.processor.inner is trainer.model.processor
     assert not any(k.startswith("processor.inner.") for k in trainer.model.state_dict())
     assert {id(p) for p in trainer.net.parameters()} == {id(p) for p in trainer.model.parameters()}
     default, _ = parse_args(["--out", str(tmp_path / "run2"), *TINY])
+    assert default.noise_std == 0.003
     assert not default.compile and not isinstance(Trainer(default, tmp_path / "run2").net.processor,
                                                    CompiledProcessor)
