@@ -32,9 +32,13 @@ from smln.rollout import rollout
 from smln.solver import solver_rollout
 
 
-def strain_summary(x: np.ndarray, edges: np.ndarray, rest_length: np.ndarray) -> dict[str, float]:
-    """Edge strain statistics (in %) of positions ``x`` (V, 3) m, ``edges`` (E, 2), ``rest_length`` (E,) m."""
-    s = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) / rest_length - 1.0
+def edge_strain(x: np.ndarray, edges: np.ndarray, rest_length: np.ndarray) -> np.ndarray:
+    """(E,) signed edge strain l / l_rest - 1 of positions ``x`` (V, 3) m, ``edges`` (E, 2), ``rest_length`` (E,) m."""
+    return np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) / rest_length - 1.0
+
+
+def strain_summary(s: np.ndarray) -> dict[str, float]:
+    """Statistics (in %) of signed edge strains ``s`` (E,)."""
     a = np.abs(s)
     return {"strain_mean": 100 * float(a.mean()), "strain_signed": 100 * float(s.mean()),
             "stretch": 100 * float(np.clip(s, 0, None).mean()), "compression": 100 * float(np.clip(-s, 0, None).mean()),
@@ -73,15 +77,12 @@ def main(argv: list[str] | None = None) -> dict:
     skinned = scene.skinned[f].numpy()
     for name, x, metrics in (("skinning", skinned, None), ("network", net.garment_positions, net.metrics),
                              ("solver", ref.garment_positions, ref.metrics)):
-        row = strain_summary(x, edges, l0)
+        row = strain_summary(edge_strain(x, edges, l0))
         row["loss_at_rest"], row["loss_terms"] = rest_loss(x)
         if metrics is not None:
             row.update(l_coll=metrics["l_coll"], h_coll=metrics["h_coll"])
         out[name] = row
-    a_net = np.abs(np.linalg.norm(net.garment_positions[edges[:, 0]] - net.garment_positions[edges[:, 1]], axis=1)
-                   / l0 - 1)
-    a_ref = np.abs(np.linalg.norm(ref.garment_positions[edges[:, 0]] - ref.garment_positions[edges[:, 1]], axis=1)
-                   / l0 - 1)
+    a_net, a_ref = (np.abs(edge_strain(fr.garment_positions, edges, l0)) for fr in (net, ref))
     out["per_edge_correlation"] = float(np.corrcoef(a_net, a_ref)[0, 1])
     print(f"{args.outfit} on {args.motion} frame {f}, held {n} frames (strain in %):")
     for name in ("skinning", "network", "solver"):

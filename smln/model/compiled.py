@@ -16,6 +16,7 @@ processor falls back to eager with one warning; the results are the same up to f
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import warnings
 
@@ -45,9 +46,7 @@ class CompiledProcessor(nn.Module):
         """Same contract as the wrapped processor's forward."""
         if self.failed is None:
             try:
-                if self.for_training:
-                    return self._compiled(*args, **kwargs)
-                with torch.no_grad():
+                with contextlib.nullcontext() if self.for_training else torch.no_grad():
                     return self._compiled(*args, **kwargs)
             except Exception as exc:  # noqa: BLE001 - any compiler failure: fall back, never break a rollout
                 self.failed = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
