@@ -80,7 +80,7 @@ def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
         port = sock.getsockname()[1]
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", f"--master_port={port}", str(script),
            "--out", str(tmp_path / "ddp"), "--max-steps", "3", "--outfits", _outfit(), *TINY]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=Path(__file__).parents[1])
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=Path(__file__).parents[1])
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
     assert res.stdout.count("DDP-OK") == 2
 
