@@ -23,7 +23,7 @@ from smln.data_sampling import make_scene
 from smln.geometry import set_threads
 from smln.losses import ClothRest
 from smln.metrics import frame_metrics, sequence_metrics
-from smln.rollout import MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, RolloutFrame
+from smln.rollout import MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, SKIN_GUARDS, RolloutFrame
 
 TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "offset_rms", "ms_model",
               "fallback", "l_coll_surface", "h_coll_surface")
@@ -60,7 +60,7 @@ def skinning_frames(scene, num_frames: int) -> Iterator[RolloutFrame]:
 
 def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu", project_body: bool = False,
                   project_layers: bool = False, precision: str = "float32", compiled: bool = False,
-                  guards: dict[str, float] | None = None) -> Iterator[RolloutFrame]:
+                  guards: dict[str, float | str] | None = None) -> Iterator[RolloutFrame]:
     """Frames of a method: ``skinning``, ``solver`` (reference L-BFGS) or a loaded model (optionally with the
     collision projection of :mod:`smln.projection` after each step, the processor in ``precision`` and compiled,
     :mod:`smln.model.compiled`; ``guards``: divergence bounds passed to :func:`smln.rollout.rollout`, e.g.
@@ -124,7 +124,7 @@ def evaluate(
     precision: str = "float32",
     compiled: bool = False,
     surface_metrics: bool = False,
-    guards: dict[str, float] | None = None,
+    guards: dict[str, float | str] | None = None,
 ) -> list[RunResult]:
     """Run every method on every outfit × clip.
 
@@ -252,14 +252,19 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-body-distance", type=float, default=MAX_BODY_DISTANCE, metavar="M",
                    help="a frame with a garment vertex farther than M meters from the body falls back to skinning "
                         "(default %(default)s)")
+    p.add_argument("--skin-guard", default="always", choices=SKIN_GUARDS,
+                   help="always: --max-skin-distance alone means divergence; symptomatic: only with a symptom of a "
+                        "tangle (mean strain > 10 %%, H-Coll > 5 %%) or beyond twice that distance "
+                        "(smln.rollout.SKIN_GUARDS)")
 
 
-def rollout_guards(a: argparse.Namespace) -> dict[str, float]:
+def rollout_guards(a: argparse.Namespace) -> dict[str, float | str]:
     """The divergence bounds of :func:`add_model_rollout_options` as :func:`smln.rollout.rollout` keywords."""
     for flag, value in (("--max-skin-distance", a.max_skin_distance), ("--max-body-distance", a.max_body_distance)):
         if not value > 0:
             raise ValueError(f"{flag} must be a positive distance in meters, got {value}")
-    return {"max_distance": a.max_skin_distance, "max_body_distance": a.max_body_distance}
+    return {"max_distance": a.max_skin_distance, "max_body_distance": a.max_body_distance,
+            "skin_guard": a.skin_guard}
 
 
 def cli_main(args: argparse.Namespace) -> None:
@@ -308,6 +313,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
             name += f" [{a.precision}]"
         if (a.max_skin_distance, a.max_body_distance) != (MAX_SKIN_DISTANCE, MAX_BODY_DISTANCE):
             name += f" [guard skin {a.max_skin_distance:g} m, body {a.max_body_distance:g} m]"
+        if a.skin_guard != "always":
+            name += f" [skin guard {a.skin_guard}]"
         methods[name] = model
     if not a.no_skinning:
         methods["skinning"] = None

@@ -58,5 +58,13 @@ def test_eval_divergence_guard_flags(tmp_path):
     assert [r["fallback"] for r in tight.per_frame] == [0.0, 0.0, 1.0, 1.0, 1.0]
     (default,) = main(common)
     assert default.method == "full" and default.metrics["fallback_frames"] == 0.0
+    # a 3 cm skinned bound: every predicted frame falls back (the jacket is 3.3-3.9 cm off its skinned place in
+    # frames 2-4), unless the guard waits for a symptom (this walk has none: strain 5-6 %, H-Coll 1-3 %) or 6 cm
+    tight_skin = common + ["--max-skin-distance", "0.03"]
+    (always,) = main(tight_skin)
+    assert [r["fallback"] for r in always.per_frame] == [0.0, 0.0, 1.0, 1.0, 1.0]
+    (symptomatic,) = main(tight_skin + ["--skin-guard", "symptomatic", "--max-body-distance", "0.45"])
+    assert symptomatic.method == "full [guard skin 0.03 m, body 0.45 m] [skin guard symptomatic]"
+    assert all(r["fallback"] == 0.0 for r in symptomatic.per_frame)
     with pytest.raises(ValueError, match="--max-skin-distance must be a positive distance"):
         main(common + ["--max-skin-distance", "0"])

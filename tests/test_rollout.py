@@ -170,3 +170,35 @@ def test_shared_body_tree_changes_nothing(scene, monkeypatch):
         assert {k: v for k, v in f.metrics.items() if k not in drop} == {
             k: v for k, v in g.metrics.items() if k not in drop
         }
+
+
+def test_symptomatic_skin_guard_lets_a_healthy_excursion_go_on(scene):
+    """``skin_guard="symptomatic"``: past ``max_distance`` from skinning a frame diverges only with a symptom
+    (mean strain or H-Coll above the thresholds) or past twice that distance; "always" is the plain bound."""
+    cloth, seq, bf = scene
+    model = drifting_model(0.02)
+    loose = dict(max_body_distance=1e9, max_strain=1e9, num_frames=10)
+    free = list(rollout(model, cloth, seq, bf, max_distance=1e9, **loose))
+    skinned = rigid_lbs(cloth.rest_vertices, seq[1]).numpy()
+    dist = np.array([np.linalg.norm(f.garment_positions - skinned[f.index], axis=1).max() for f in free])
+    bound = 0.1
+    assert dist[-1] > 2 * bound and dist[2] < bound  # the drift crosses both bounds within the clip
+    first_over = int(np.argmax(dist > bound))
+    first_hard = int(np.argmax(dist > 2 * bound))
+    assert first_hard > first_over
+
+    def first_fallback(**kw) -> int:
+        frames = list(rollout(model, cloth, seq, bf, max_distance=bound, fallback=True, **loose, **kw))
+        return next(i for i, f in enumerate(frames) if f.fallback)
+
+    assert first_fallback() == first_over
+    # no symptom can fire (thresholds out of reach): only the hard bound at twice the distance
+    assert first_fallback(skin_guard="symptomatic", symptom_strain_mean=1e9, symptom_h_coll=1e9) == first_hard
+    # every frame symptomatic: the plain bound again
+    assert first_fallback(skin_guard="symptomatic", symptom_strain_mean=-1.0) == first_over
+    assert first_fallback(skin_guard="symptomatic", symptom_strain_mean=1e9, symptom_h_coll=-1.0) == first_over
+    with pytest.raises(RolloutError, match=r"from its skinned position \(> 0.1 m\) at mean strain"):
+        list(rollout(model, cloth, seq, bf, max_distance=bound, skin_guard="symptomatic", symptom_strain_mean=-1.0,
+                     **loose))
+    with pytest.raises(ValueError, match="skin_guard"):
+        list(rollout(model, cloth, seq, bf, skin_guard="sometimes", **loose))
