@@ -74,6 +74,7 @@ class TrainConfig:
     validation_frames: int = 120
     validation_outfit: str | None = None
     validation_motion: str = "06_01_walk"
+    validation_skin_guard: str = "always"  # smln.rollout.SKIN_GUARDS; "symptomatic": a swing past 0.4 m is no failure
     log_every: int = 10
     threads: int = 1
     compile: bool = False  # the processor through torch.compile (forward and backward; smln.model.compiled)
@@ -326,7 +327,8 @@ class Trainer:
         exploded = 0.0
         try:
             with torch.no_grad():
-                for fr in rollout(model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True):
+                for fr in rollout(model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True,
+                                  skin_guard=c.validation_skin_guard):
                     metrics.append(fr.metrics)
                     if fr.fallback:
                         exploded = 1.0
@@ -522,6 +524,11 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
     p.add_argument("--repulsion-weight", type=float,
                    help="λr of the repulsion loss (default: LossWeights.training(), 1e4; ignored by baseline)")
+    from smln.rollout import SKIN_GUARDS
+
+    p.add_argument("--validation-skin-guard", choices=SKIN_GUARDS,
+                   help="the validation rollout's skinned-distance guard (smln.rollout.SKIN_GUARDS; default always: "
+                        "a jacket swinging past 0.4 m in the pirouette counts as a divergence)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
     args = p.parse_args(argv)
@@ -538,7 +545,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
-                      ("noise_std", "noise_std"), ("compile", "compile")):
+                      ("noise_std", "noise_std"), ("compile", "compile"),
+                      ("validation_skin_guard", "validation_skin_guard")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

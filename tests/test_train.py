@@ -236,3 +236,27 @@ def test_compile_flag_wraps_only_the_trained_copy(tmp_path):
     assert default.noise_std == 0.003
     assert not default.compile and not isinstance(Trainer(default, tmp_path / "run2").net.processor,
                                                    CompiledProcessor)
+
+
+@pytest.mark.slow
+def test_validation_rollout_uses_the_configured_skin_guard(tmp_path, monkeypatch):
+    """``--validation-skin-guard`` reaches the validation rollout (default: the rollout's plain ``always``)."""
+    import smln.rollout
+    from smln.train import parse_args
+
+    common = ["--out", str(tmp_path), "--outfits", _outfit(), *TINY]
+    assert parse_args(common)[0].validation_skin_guard == "always"
+    cfg, _ = parse_args(common + ["--validation-skin-guard", "symptomatic"])
+    trainer = Trainer(cfg, tmp_path)
+    calls: list[dict] = []
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return iter(())
+
+    monkeypatch.setattr(smln.rollout, "rollout", spy)
+    out = trainer.validate()
+    assert len(calls) == 1 and calls[0]["skin_guard"] == "symptomatic" and calls[0]["fallback"] is True
+    assert out["val_frames"] == 0.0
+    with pytest.raises(SystemExit):
+        parse_args(common + ["--validation-skin-guard", "sometimes"])
