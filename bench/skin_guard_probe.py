@@ -5,7 +5,8 @@ still fall back), and per frame records the largest distance of a garment vertex
 the body, H-Coll, L-Coll and the mean / max edge strain. Then it cuts each scene into *excursions* (consecutive
 frames with a vertex more than ``--bound`` from its skinned place) and says which of them show a symptom of a
 tangle under the rules of ``skin_guard="symptomatic"`` (:data:`smln.rollout.SKIN_GUARDS`): mean strain above
-:data:`~smln.rollout.SYMPTOM_STRAIN_MEAN`, H-Coll above :data:`~smln.rollout.SYMPTOM_H_COLL`, a vertex beyond
+:data:`~smln.rollout.SYMPTOM_STRAIN_MEAN`, H-Coll above :data:`~smln.rollout.SYMPTOM_H_COLL`
+(:func:`~smln.rollout.tangle_symptom`), a vertex beyond
 :data:`~smln.rollout.HARD_SKIN_FACTOR` times the bound, or beyond :data:`~smln.rollout.MAX_BODY_DISTANCE` of the
 body. Use training clips to design a guard, test clips to check it.
 
@@ -22,9 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
-from smln.rollout import HARD_SKIN_FACTOR, MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, SYMPTOM_H_COLL, SYMPTOM_STRAIN_MEAN
+from smln.rollout import HARD_SKIN_FACTOR, MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, tangle_symptom
 
 COLUMNS = ("frame", "skin_distance_max", "body_distance_max", "h_coll", "l_coll", "strain_mean", "strain_max")
 
@@ -40,9 +40,8 @@ def scene_frames(model, scene, num_frames: int) -> list[list[float]]:
         for fr in rollout(model, scene.cloth, scene.body.slice(0, n + 1), scene.body.faces, num_frames=n,
                           fallback=True, max_distance=1e9, max_body_distance=1e9):
             skin = np.linalg.norm(fr.garment_positions - skinned[fr.index], axis=1).max()
-            body, _ = cKDTree(fr.body_vertices).query(fr.garment_positions)
-            m = fr.metrics
-            rows.append([fr.index, float(skin), float(body.max()), m["h_coll"], m["l_coll"], m["strain_mean"],
+            m = fr.metrics  # body_distance_max: the rollout's own nearest-body-vertex query of this frame
+            rows.append([fr.index, float(skin), m["body_distance_max"], m["h_coll"], m["l_coll"], m["strain_mean"],
                          m["strain_max"]])
     return rows
 
@@ -52,8 +51,7 @@ def excursions(rows: list[list[float]], bound: float) -> list[dict]:
     r = np.asarray(rows, dtype=float).reshape(-1, len(COLUMNS))
     frame, skin, body, h, _, strain, _ = r.T
     over = skin > bound
-    symptom = over & ((strain > SYMPTOM_STRAIN_MEAN) | (h > SYMPTOM_H_COLL) | (skin > HARD_SKIN_FACTOR * bound)
-                      | (body > MAX_BODY_DISTANCE))
+    symptom = over & (tangle_symptom(strain, h) | (skin > HARD_SKIN_FACTOR * bound) | (body > MAX_BODY_DISTANCE))
     out = []
     edges = np.flatnonzero(np.diff(np.concatenate([[0], over.astype(int), [0]])))
     for a, b in zip(edges[::2], edges[1::2], strict=True):

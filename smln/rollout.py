@@ -67,6 +67,13 @@ HARD_SKIN_FACTOR = 2.0
 """``skin_guard="symptomatic"``: beyond this multiple of ``max_distance`` a vertex is divergence whatever else."""
 
 
+def tangle_symptom(strain_mean, h_coll, strain_limit: float = SYMPTOM_STRAIN_MEAN,
+                   h_coll_limit: float = SYMPTOM_H_COLL):
+    """The symptom test of ``skin_guard="symptomatic"``: mean edge strain (fraction) above ``strain_limit`` or
+    H-Coll (%) above ``h_coll_limit``. Scalars give a bool, numpy arrays (per frame) a bool array."""
+    return (strain_mean > strain_limit) | (h_coll > h_coll_limit)
+
+
 class RolloutError(RuntimeError):
     """The rollout diverged (message names the frame and the cause)."""
 
@@ -267,8 +274,8 @@ def rollout(
                 frame = make_frame(t, x_next, _np(p), _np(a), False, extra, normals)
                 limit = max_strain + _max_strain(skinned[t], rest)
                 m = frame.metrics
-                symptom = m["strain_mean"] > symptom_strain_mean or m["h_coll"] > symptom_h_coll
-                if symptomatic and skin_distance > max_distance and symptom:
+                if symptomatic and skin_distance > max_distance and tangle_symptom(
+                        m["strain_mean"], m["h_coll"], symptom_strain_mean, symptom_h_coll):
                     reason = (f"a vertex is {skin_distance:.2f} m from its skinned position (> {max_distance} m) "
                               f"at mean strain {m['strain_mean']:.3f}, H-Coll {m['h_coll']:.1f} %")
                 elif frame.metrics["body_distance_max"] > max_body_distance:
