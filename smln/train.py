@@ -37,6 +37,8 @@ from smln.graph import LEGACY_BODY_EDGE_DIM
 from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
+NOISE_MODES = ("isotropic", "normal")  # TrainConfig.noise_mode, see Trainer.input_noise
+
 VARIANTS = {
     # name: (repulsion layer on, repulsion loss on)  -- the paper's Table 3 rows
     "full": (True, True),
@@ -66,6 +68,7 @@ class TrainConfig:
     rollout_max: int = 48
     rollout_growth_steps: int = 6000
     noise_std: float = 0.003
+    noise_mode: str = "isotropic"  # NOISE_MODES; "normal": along each cloth vertex normal only (session 10)
     settle_steps: int = 1
     ema_decay: float = 0.999
     init_from: str | None = None
@@ -162,6 +165,8 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, out_dir: Path, device: str = "cpu") -> None:
         if cfg.variant not in VARIANTS:
             raise ValueError(f"unknown variant {cfg.variant!r}; choose one of {', '.join(VARIANTS)}")
+        if cfg.noise_mode not in NOISE_MODES:
+            raise ValueError(f"unknown noise_mode {cfg.noise_mode!r}; choose one of {', '.join(NOISE_MODES)}")
         self.cfg = cfg
         self.out = Path(out_dir)
         self.device = torch.device(device)
@@ -203,8 +208,7 @@ class Trainer:
         body_cur, body_next = scene.body.vertices[t], scene.body.vertices[t + 1]
         pinned_next = scene.skinned[t + 1]
         if self.cfg.noise_std > 0:
-            eps = torch.randn(x_cur.shape, generator=self.noise) * self.cfg.noise_std
-            eps[scene.cloth.pinned] = 0
+            eps = self.input_noise(scene, x_cur)
             x_prev, x_cur = x_prev + eps, x_cur + eps
         body = BodyStep.from_vertices(body_cur, body_next, scene.body.faces)
         graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body.normals_next)
@@ -222,6 +226,22 @@ class Trainer:
         terms["grad_norm"] = float(grad_norm)
         terms["repulsion_mean"] = float(a.detach().norm(dim=-1).mean())
         return x_next.detach(), terms
+
+    def input_noise(self, scene: Scene, x_cur: torch.Tensor) -> torch.Tensor:
+        """(V, 3) float32 meters: the offset added to both input states (x_{t-1}, x_t; velocity unchanged), zero
+        on pinned vertices. ``isotropic`` (HOOD's): N(0, σ²) per coordinate. ``normal``: N(0, σ²) along each
+        vertex's unit normal of x_t, so the offset moves vertices into and out of the layer beneath and the body
+        (what the collision terms teach the network to undo) while edge lengths change only to second order
+        (an isotropic offset stretches and compresses edges by ~σ, which the stretch term then trains the
+        network to correct within one step)."""
+        sigma = self.cfg.noise_std
+        if self.cfg.noise_mode == "normal":
+            amount = torch.randn((x_cur.shape[0], 1), generator=self.noise) * sigma
+            eps = vertex_normals(x_cur, scene.cloth.faces) * amount
+        else:
+            eps = torch.randn(x_cur.shape, generator=self.noise) * sigma
+        eps[scene.cloth.pinned] = 0
+        return eps
 
     def learning_rate(self, step: int | None = None) -> float:
         """lr * 0.5^((step - lr_origin) / lr_halving_steps), at least min_lr (the schedule restarts at
@@ -511,6 +531,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--noise-std", type=float,
                    help="σ of the Gaussian noise on the input positions, m (default 3e-3, HOOD's; session 8's 1e-3 "
                         "run: 1.1 points less mean strain, 0.5 more L-Coll, docs/RESULTS.md)")
+    p.add_argument("--noise-mode", choices=NOISE_MODES,
+                   help="direction of that noise (Trainer.input_noise): isotropic (default, HOOD's) or normal (along "
+                        "each cloth vertex normal: into and out of the layers and the body, edge lengths ~unchanged)")
     p.add_argument("--compile", action="store_true", default=None,
                    help="run the processor through torch.compile, forward and backward (13-18 %% faster steps on "
                         "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
@@ -545,7 +568,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
-                      ("noise_std", "noise_std"), ("compile", "compile"),
+                      ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("validation_skin_guard", "validation_skin_guard")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))

@@ -260,3 +260,39 @@ def test_validation_rollout_uses_the_configured_skin_guard(tmp_path, monkeypatch
     assert out["val_frames"] == 0.0
     with pytest.raises(SystemExit):
         parse_args(common + ["--validation-skin-guard", "sometimes"])
+
+
+def test_normal_input_noise_moves_vertices_along_their_normals_only(tmp_path):
+    """``noise_mode="normal"``: each offset is parallel to its vertex normal (Gaussian amount, σ per vertex),
+    so edge lengths change to second order only; the isotropic offset changes them to first order. Pinned
+    vertices get none in both modes; an unknown mode is refused."""
+    from smln.data_sampling import SceneCache
+    from smln.geometry import unique_edges, vertex_normals
+    from smln.train import TrainConfig
+
+    tiny = {"latent_size": 8, "schedule": [[0, 1], [1, 1], [0, 1]]}
+    scene = SceneCache(edge_length=0.05).get("leggings_skirt", "female_average", "02_01_walk")  # pinned waistbands
+    x = scene.skinned[3]
+    normals = vertex_normals(x, scene.cloth.faces)
+    edges = unique_edges(scene.cloth.faces)
+    sigma = 0.003
+
+    def edge_change(eps: torch.Tensor) -> torch.Tensor:
+        d0 = (x[edges[:, 0]] - x[edges[:, 1]]).norm(dim=-1)
+        d1 = (x[edges[:, 0]] + eps[edges[:, 0]] - x[edges[:, 1]] - eps[edges[:, 1]]).norm(dim=-1)
+        return (d1 - d0).abs()
+
+    along = Trainer(TrainConfig(noise_std=sigma, noise_mode="normal", model=tiny), tmp_path / "n").input_noise(scene, x)
+    iso = Trainer(TrainConfig(noise_std=sigma, model=tiny), tmp_path / "i").input_noise(scene, x)
+    free = ~scene.cloth.pinned
+    assert scene.cloth.pinned.sum() > 10
+    assert (along[scene.cloth.pinned] == 0).all() and (iso[scene.cloth.pinned] == 0).all()
+    tangential = along[free] - (along[free] * normals[free]).sum(-1, keepdim=True) * normals[free]
+    assert tangential.norm(dim=-1).max() < 1e-7
+    amount = (along[free] * normals[free]).sum(-1)
+    assert abs(float(amount.std()) - sigma) < 0.1 * sigma and abs(float(amount.mean())) < 0.1 * sigma
+    assert 0.8 * sigma * 3**0.5 < float(iso[free].norm(dim=-1).pow(2).mean().sqrt()) < 1.2 * sigma * 3**0.5
+    # the same size of offset: the isotropic one changes edge lengths several times more
+    assert float(edge_change(along).median()) * 3 < float(edge_change(iso).median())
+    with pytest.raises(ValueError, match="noise_mode"):
+        Trainer(TrainConfig(noise_mode="sideways", model=tiny), tmp_path / "x")
