@@ -292,7 +292,7 @@ def test_normal_input_noise_moves_vertices_along_their_normals_only(tmp_path):
     amount = (along[free] * normals[free]).sum(-1)
     assert abs(float(amount.std()) - sigma) < 0.1 * sigma and abs(float(amount.mean())) < 0.1 * sigma
     assert 0.8 * sigma * 3**0.5 < float(iso[free].norm(dim=-1).pow(2).mean().sqrt()) < 1.2 * sigma * 3**0.5
-    # the same size of offset: the isotropic one changes edge lengths several times more
+    # the same σ: the isotropic offset changes edge lengths several times more (first order, ~√2·σ per edge)
     assert float(edge_change(along).median()) * 3 < float(edge_change(iso).median())
     with pytest.raises(ValueError, match="noise_mode"):
         Trainer(TrainConfig(noise_mode="sideways", model=tiny), tmp_path / "x")
