@@ -167,6 +167,11 @@ class Trainer:
             raise ValueError(f"unknown variant {cfg.variant!r}; choose one of {', '.join(VARIANTS)}")
         if cfg.noise_mode not in NOISE_MODES:
             raise ValueError(f"unknown noise_mode {cfg.noise_mode!r}; choose one of {', '.join(NOISE_MODES)}")
+        from smln.rollout import SKIN_GUARDS
+
+        if cfg.validation_skin_guard not in SKIN_GUARDS:  # a config file's typo, caught before any step
+            raise ValueError(f"unknown validation_skin_guard {cfg.validation_skin_guard!r}; choose one of "
+                             f"{', '.join(SKIN_GUARDS)}")
         self.cfg = cfg
         self.out = Path(out_dir)
         self.device = torch.device(device)

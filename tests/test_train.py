@@ -242,7 +242,7 @@ def test_compile_flag_wraps_only_the_trained_copy(tmp_path):
 def test_validation_rollout_uses_the_configured_skin_guard(tmp_path, monkeypatch):
     """``--validation-skin-guard`` reaches the validation rollout (default: the rollout's plain ``always``)."""
     import smln.rollout
-    from smln.train import parse_args
+    from smln.train import TrainConfig, parse_args
 
     common = ["--out", str(tmp_path), "--outfits", _outfit(), *TINY]
     assert parse_args(common)[0].validation_skin_guard == "always"
@@ -260,6 +260,8 @@ def test_validation_rollout_uses_the_configured_skin_guard(tmp_path, monkeypatch
     assert out["val_frames"] == 0.0
     with pytest.raises(SystemExit):
         parse_args(common + ["--validation-skin-guard", "sometimes"])
+    with pytest.raises(ValueError, match="validation_skin_guard"):  # the same typo in a config file
+        Trainer(TrainConfig(validation_skin_guard="sometimes"), tmp_path / "typo")
 
 
 def test_normal_input_noise_moves_vertices_along_their_normals_only(tmp_path):
