@@ -89,6 +89,12 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
         f"- architecture: {json.dumps(card.get('config'))}",
         f"- loss weights: {json.dumps(card.get('loss_weights'))}",
     ]
+    if card.get("averaged_from"):  # a weight average (`smln average`) of runs fine-tuned from one parent
+        parts = [f"{a.get('path')} (weight {a.get('weight'):.2f}, {a.get('steps')} steps, "
+                 f"{(a.get('training') or {}).get('wall_time_s')} s, noise {(a.get('training') or {}).get('noise_std')} m "
+                 f"{(a.get('training') or {}).get('noise_mode', 'isotropic')})" for a in card["averaged_from"]]
+        md.append("- parameters averaged (`smln average`) from: " + "; ".join(parts)
+                  + " (steps: the largest input's; wall time: the sum)")
     lineage, parent = [], card.get("initialised_from")
     while parent:  # fine-tuned runs: the runs they continued, newest first
         rep = (parent.get("loss_weights") or {}).get("repulsion")

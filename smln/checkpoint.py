@@ -31,7 +31,8 @@ class CheckpointError(RuntimeError):
     """A checkpoint is missing, malformed, tampered with or does not match its config."""
 
 
-def _paths(path: str | Path) -> tuple[Path, Path]:
+def checkpoint_files(path: str | Path) -> tuple[Path, Path]:
+    """(tensor file, card file) of a checkpoint stem, either file name, or a directory."""
     p = Path(path)
     if p.is_dir() or str(path).endswith(("/", "\\")):
         return p / "model.safetensors", p / "card.json"
@@ -62,7 +63,7 @@ def save_checkpoint(path: str | Path, model: SMLN, config: SMLNConfig | None = N
         Path of the JSON card.
     """
     config = config or model.config
-    tensors_path, card_path = _paths(path)
+    tensors_path, card_path = checkpoint_files(path)
     tensors_path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
     save_file(state, str(tensors_path), metadata={"format": FORMAT, "version": str(VERSION)})
@@ -113,7 +114,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     Raises:
         CheckpointError: with a message naming what is wrong.
     """
-    tensors_path, card_path = _paths(path)
+    tensors_path, card_path = checkpoint_files(path)
     if not card_path.is_file():
         raise CheckpointError(f"checkpoint card not found: {card_path}")
     if not tensors_path.is_file():
@@ -168,3 +169,76 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         raise CheckpointError(f"{tensors_path}: unreadable safetensors file ({e})") from e
     model.load_state_dict(state, strict=True)
     return model.to(map_location).eval(), card
+
+
+def average_checkpoints(paths: list[str | Path], out: str | Path, weights: list[float] | None = None) -> Path:
+    """Write the weighted average of several checkpoints' parameters (a "model soup") as a new checkpoint.
+
+    Averaging only makes sense for runs fine-tuned from one common parent (the same loss basin), so the inputs
+    must share the architecture config, the variant and every buffer (the normaliser statistics and the output
+    scale: the first layers were trained on inputs scaled by them). Parameters are averaged in float64 and
+    stored in their own dtype.
+
+    Args:
+        paths: two or more checkpoints (stems, files or directories, as :func:`load_checkpoint` takes).
+        out: the stem or directory to write (as :func:`save_checkpoint` takes).
+        weights: one non-negative weight per checkpoint (normalised to sum 1); default uniform.
+
+    Returns:
+        Path of the written JSON card. Its ``averaged_from`` lists each input (path, sha256, weight, steps, wall
+        time, training settings); ``training.steps`` is the largest input's and ``training.wall_time_s`` the sum.
+
+    Raises:
+        CheckpointError: an input fails :func:`load_checkpoint`.
+        ValueError: fewer than two inputs, bad weights, or inputs that differ in config, variant or buffers.
+    """
+    if len(paths) < 2:
+        raise ValueError("averaging needs at least two checkpoints")
+    w = torch.tensor([1.0] * len(paths) if weights is None else [float(x) for x in weights], dtype=torch.float64)
+    if w.numel() != len(paths) or not torch.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+        raise ValueError(f"need one non-negative weight per checkpoint ({len(paths)}), got {weights}")
+    w = w / w.sum()
+    loaded = [load_checkpoint(p) for p in paths]
+    first_model, first_card = loaded[0]
+    for (_, card), path in zip(loaded[1:], paths[1:], strict=True):
+        if card["config"] != first_card["config"]:
+            raise ValueError(f"{path}: its architecture config differs from {paths[0]}'s; cannot average")
+        if card.get("variant") != first_card.get("variant"):
+            raise ValueError(f"{path}: variant {card.get('variant')!r} differs from {first_card.get('variant')!r}")
+    buffer_names = {name for name, _ in first_model.named_buffers()}
+    states = [m.state_dict() for m, _ in loaded]
+    averaged = {}
+    for name, value in states[0].items():
+        if name in buffer_names:
+            for state, path in zip(states[1:], paths[1:], strict=True):
+                if not torch.equal(state[name], value):
+                    raise ValueError(f"{path}: buffer {name!r} differs from {paths[0]}'s (normaliser statistics "
+                                     "must match: average only runs fine-tuned from one parent)")
+            averaged[name] = value
+        else:
+            stacked = torch.stack([s[name].to(torch.float64) for s in states])
+            averaged[name] = torch.tensordot(w, stacked, dims=1).to(value.dtype)
+    first_model.load_state_dict(averaged, strict=True)
+    cards = [c for _, c in loaded]
+    trainings = [c.get("training", {}) for c in cards]
+    training = {key: trainings[0].get(key) for key in ("hardware", "torch", "device", "processes", "variant")}
+    training["method"] = "weighted average of the parameters of the checkpoints in averaged_from"
+    training["steps"] = max(int(t.get("steps") or 0) for t in trainings)
+    training["wall_time_s"] = round(sum(float(t.get("wall_time_s") or 0.0) for t in trainings), 1)
+    card_out: dict[str, Any] = {
+        "variant": first_card.get("variant", "smln"),
+        "training": training,
+        "weights": "weighted average of the inputs' stored weights",
+        "averaged_from": [
+            {"path": str(p), "sha256": c["sha256"], "weight": float(wi), "steps": t.get("steps"),
+             "wall_time_s": t.get("wall_time_s"), "loss_weights": c.get("loss_weights"), "training": t,
+             "initialised_from": c.get("initialised_from")}
+            for p, c, t, wi in zip(paths, cards, trainings, w.tolist(), strict=True)
+        ],
+    }
+    if all(c.get("loss_weights") == first_card.get("loss_weights") for c in cards):
+        card_out["loss_weights"] = first_card.get("loss_weights")
+    parents = [c.get("initialised_from") for c in cards]
+    if parents[0] is not None and all(p == parents[0] for p in parents):
+        card_out["initialised_from"] = parents[0]  # the common parent: the lineage the model cards print
+    return save_checkpoint(out, first_model, card=card_out)

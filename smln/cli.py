@@ -1,4 +1,5 @@
-"""The ``smln`` command line: list clips and outfits, pose bodies, run rollouts, train, evaluate, export.
+"""The ``smln`` command line: list clips and outfits, pose bodies, run rollouts, train, evaluate, average
+checkpoints, export.
 
 Every sub-command turns the library's own errors (bad files, unknown names, tampered checkpoints) into one line
 on stderr and exit status 2, never a traceback.
@@ -72,6 +73,15 @@ def _cmd_outfit(args: argparse.Namespace) -> None:
     print(f"wrote {out}")
 
 
+def _cmd_average(args: argparse.Namespace) -> None:
+    from smln.checkpoint import average_checkpoints, checkpoint_files
+
+    for target in checkpoint_files(args.out):
+        _refuse_overwrite(target, args.force)
+    card = average_checkpoints(args.checkpoints, args.out, weights=args.weights)
+    print(f"wrote {card} (average of {len(args.checkpoints)} checkpoints)")
+
+
 def _refuse_overwrite(path: Path, force: bool) -> None:
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; pass --force to overwrite it")
@@ -112,6 +122,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="store_true")
     p.set_defaults(func=_cmd_outfit)
+
+    p = sub.add_parser("average", help="average the weights of checkpoints fine-tuned from one parent (model soup)")
+    p.add_argument("checkpoints", nargs="+", help="two or more checkpoints with the same config and buffers")
+    p.add_argument("--out", required=True, help="stem or directory of the new checkpoint")
+    p.add_argument("--weights", type=float, nargs="+", default=None, help="one weight per checkpoint (uniform)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing checkpoint")
+    p.set_defaults(func=_cmd_average)
 
     for name, module, func, helptext in (
         ("rollout", "smln.rollout_cli", "main", "run a checkpoint over a clip and save the rollout NPZ"),

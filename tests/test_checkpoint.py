@@ -7,7 +7,7 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from smln.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from smln.checkpoint import CheckpointError, average_checkpoints, load_checkpoint, save_checkpoint
 from smln.model import SMLN, SMLNConfig
 
 CFG = dict(latent_size=16, schedule=((0, 1), (1, 1), (0, 1)))
@@ -117,3 +117,73 @@ def test_card_without_body_normal_field_loads_the_legacy_layout(tmp_path):
     card_path.write_text(json.dumps(card))
     with pytest.raises(CheckpointError, match="body_encoder"):
         load_checkpoint(tmp_path / "old")
+
+
+def _perturbed(model: SMLN, seed: int) -> SMLN:
+    """A copy of ``model`` with every parameter moved by N(0, 0.01²) and the buffers unchanged (a fine-tune)."""
+    torch.manual_seed(seed)
+    other = SMLN(model.config)
+    other.load_state_dict(model.state_dict())
+    with torch.no_grad():
+        for p in other.parameters():
+            p.add_(0.01 * torch.randn_like(p))
+    return other
+
+
+def test_average_is_the_weighted_mean_of_parameters_and_keeps_buffers(tmp_path):
+    base = trained_like_model()
+    a, b = _perturbed(base, 1), _perturbed(base, 2)
+    save_checkpoint(tmp_path / "a", a, card={"variant": "full", "training": {"steps": 10, "wall_time_s": 5.0}})
+    save_checkpoint(tmp_path / "b", b, card={"variant": "full", "training": {"steps": 12, "wall_time_s": 7.0}})
+    card_path = average_checkpoints([tmp_path / "a", tmp_path / "b"], tmp_path / "soup", weights=[3.0, 1.0])
+    soup, card = load_checkpoint(card_path)  # a valid checkpoint: sha256, names, shapes
+    sa, sb, ss = a.state_dict(), b.state_dict(), soup.state_dict()
+    buffers = {name for name, _ in base.named_buffers()}
+    for name in ss:
+        expected = sa[name] if name in buffers else 0.75 * sa[name] + 0.25 * sb[name]
+        assert torch.allclose(ss[name], expected, atol=1e-7), name
+    assert card["variant"] == "full" and card["training"]["steps"] == 12 and card["training"]["wall_time_s"] == 12.0
+    assert [round(x["weight"], 6) for x in card["averaged_from"]] == [0.75, 0.25]
+    # the average of a checkpoint with itself is that checkpoint
+    average_checkpoints([tmp_path / "a", tmp_path / "a"], tmp_path / "self")
+    same, _ = load_checkpoint(tmp_path / "self")
+    for name, value in same.state_dict().items():
+        assert torch.equal(value, sa[name]), name
+
+
+def test_average_refuses_checkpoints_that_do_not_share_a_parent(tmp_path):
+    base = trained_like_model()
+    save_checkpoint(tmp_path / "a", _perturbed(base, 1), card={"variant": "full"})
+    other_stats = _perturbed(base, 2)
+    other_stats.node_norm(torch.randn(20, 24))  # other normaliser statistics
+    save_checkpoint(tmp_path / "stats", other_stats, card={"variant": "full"})
+    save_checkpoint(tmp_path / "variant", _perturbed(base, 3), card={"variant": "baseline"})
+    save_checkpoint(tmp_path / "arch", SMLN(SMLNConfig(latent_size=8, schedule=((0, 1),))), card={"variant": "full"})
+    with pytest.raises(ValueError, match="buffer 'node_norm"):
+        average_checkpoints([tmp_path / "a", tmp_path / "stats"], tmp_path / "out")
+    with pytest.raises(ValueError, match="variant"):
+        average_checkpoints([tmp_path / "a", tmp_path / "variant"], tmp_path / "out")
+    with pytest.raises(ValueError, match="config"):
+        average_checkpoints([tmp_path / "a", tmp_path / "arch"], tmp_path / "out")
+    with pytest.raises(ValueError, match="at least two"):
+        average_checkpoints([tmp_path / "a"], tmp_path / "out")
+    with pytest.raises(ValueError, match="weight"):
+        average_checkpoints([tmp_path / "a", tmp_path / "a"], tmp_path / "out", weights=[1.0, -1.0])
+    assert not (tmp_path / "out.safetensors").exists()
+
+
+def test_average_cli_refuses_to_overwrite_and_reports_bad_input_in_one_line(tmp_path, capsys):
+    from smln.cli import main
+
+    base = trained_like_model()
+    save_checkpoint(tmp_path / "a", _perturbed(base, 1), card={"variant": "full"})
+    save_checkpoint(tmp_path / "b", _perturbed(base, 2), card={"variant": "full"})
+    args = ["average", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "soup")]
+    assert main(args) == 0 and load_checkpoint(tmp_path / "soup")
+    before = (tmp_path / "soup.safetensors").read_bytes()
+    assert main(args) == 2 and "exists" in capsys.readouterr().err
+    assert (tmp_path / "soup.safetensors").read_bytes() == before  # nothing the user had is lost
+    (tmp_path / "b.safetensors").write_bytes(b"\x80garbage")
+    assert main([*args[:3], "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pickle" in err[0]
