@@ -90,9 +90,12 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
         f"- loss weights: {json.dumps(card.get('loss_weights'))}",
     ]
     if card.get("averaged_from"):  # a weight average (`smln average`) of runs fine-tuned from one parent
-        parts = [f"{a.get('path')} (weight {a.get('weight'):.2f}, {a.get('steps')} steps, "
-                 f"{(a.get('training') or {}).get('wall_time_s')} s, noise {(a.get('training') or {}).get('noise_std')} m "
-                 f"{(a.get('training') or {}).get('noise_mode', 'isotropic')})" for a in card["averaged_from"]]
+        parts = []
+        for a in card["averaged_from"]:
+            tr_a = a.get("training") or {}
+            parts.append(f"{a.get('path')} (weight {a.get('weight'):.2f}, {a.get('steps')} steps, "
+                         f"{tr_a.get('wall_time_s')} s, input noise {tr_a.get('noise_std')} m "
+                         f"{tr_a.get('noise_mode', 'isotropic')})")
         md.append("- parameters averaged (`smln average`) from: " + "; ".join(parts)
                   + " (steps: the largest input's; wall time: the sum)")
     lineage, parent = [], card.get("initialised_from")
