@@ -196,6 +196,7 @@ class Trainer:
         self.ema = SMLN(cfg.model_config()).to(self.device)
         self.ema.load_state_dict(self.model.state_dict())
         self.ema.requires_grad_(False)
+        self.cache_tensor_lists()
         self.sampler = EpisodeSampler(cfg, cfg.seed * 1000 + self.rank)
         self.noise = torch.Generator().manual_seed(cfg.seed * 1000 + self.rank + 1)
         self.cache = SceneCache(self.model, edge_length=cfg.edge_length)
@@ -222,7 +223,7 @@ class Trainer:
         loss, terms = total_loss(x_prev, x_cur, x_next, body, scene.rest, self.weights)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
-        grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+        grad_norm = torch.nn.utils.clip_grad_norm_(self._params, self.cfg.grad_clip, foreach=True)
         for group in self.opt.param_groups:
             group["lr"] = self.learning_rate()
         self.opt.step()
@@ -288,15 +289,23 @@ class Trainer:
             logs.append(terms)
         return logs
 
+    def cache_tensor_lists(self) -> None:
+        """Keep the tensor lists that the per-step EMA update and gradient clipping walk (``load_state_dict``
+        copies in place, so they stay valid): listing them through the module tree every step cost ~6 % of a
+        training step."""
+        self._params = list(self.model.parameters())
+        self._ema_pairs = (list(self.ema.parameters()), [p.detach() for p in self._params])
+        self._buffer_pairs = list(zip(self.ema.buffers(), self.model.buffers(), strict=True))
+        if len(self._ema_pairs[0]) != len(self._params):
+            raise RuntimeError("EMA and model parameters differ")
+
     @torch.no_grad()
     def update_ema(self) -> None:
         """ema <- decay * ema + (1 - decay) * weights (one foreach lerp over all tensors); buffers (normaliser
         statistics) are copied."""
-        ema, weights = list(self.ema.parameters()), [p.detach() for p in self.model.parameters()]
-        if len(ema) != len(weights):
-            raise RuntimeError("EMA and model parameters differ")
+        ema, weights = self._ema_pairs
         torch._foreach_lerp_(ema, weights, 1.0 - self.cfg.ema_decay)
-        for e, b in zip(self.ema.buffers(), self.model.buffers(), strict=True):
+        for e, b in self._buffer_pairs:
             e.copy_(b)
 
     def init_from(self, path: str) -> None:

@@ -160,6 +160,7 @@ def test_ema_update_is_the_moving_average():
 
     trainer.cfg = cfg
     trainer.model, trainer.ema = SMLN(cfg.model_config()), SMLN(cfg.model_config())
+    trainer.cache_tensor_lists()
     before = [p.detach().clone() for p in trainer.ema.parameters()]
     with torch.no_grad():
         for p in trainer.model.parameters():
