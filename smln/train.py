@@ -329,6 +329,9 @@ class Trainer:
         self.parent = {"path": str(path), "steps": self.step, "wall_time_s": tr.get("wall_time_s"),
                        "hardware": tr.get("hardware"), "loss_weights": card.get("loss_weights"),
                        "initialised_from": card.get("initialised_from")}
+        if card.get("averaged_from"):  # a weight average (`smln average`): name its inputs in the lineage
+            self.parent["averaged_from"] = [{k: a.get(k) for k in ("path", "sha256", "weight", "steps")}
+                                            for a in card["averaged_from"]]
 
     def body_normal_samples(self, frame_stride: int = 15) -> torch.Tensor:
         """(M, 4) body-normal columns of the body edges of skinned training states (every ``frame_stride``-th
