@@ -299,3 +299,35 @@ def test_normal_input_noise_moves_vertices_along_their_normals_only(tmp_path):
     assert float(edge_change(along).median()) * 3 < float(edge_change(iso).median())
     with pytest.raises(ValueError, match="noise_mode"):
         Trainer(TrainConfig(noise_mode="sideways", model=tiny), tmp_path / "x")
+
+
+def test_mixed_input_noise_adds_a_normal_offset_to_the_isotropic_one(tmp_path):
+    """``noise_normal_std``: the normal-only offset on its own is the ``normal`` mode's offset (same draws);
+    added to isotropic noise of σ, the normal component has σ_total = sqrt(σ² + σn²) and the tangential part
+    stays the isotropic σ per tangent direction. Negative σ is refused."""
+    from smln.data_sampling import SceneCache
+    from smln.geometry import vertex_normals
+    from smln.train import TrainConfig, parse_args
+
+    tiny = {"latent_size": 8, "schedule": [[0, 1], [1, 1], [0, 1]]}
+    scene = SceneCache(edge_length=0.05).get("tshirt_jacket", "female_average", "02_01_walk")
+    x = scene.skinned[3]
+    normals = vertex_normals(x, scene.cloth.faces)
+    only_normal = Trainer(TrainConfig(noise_std=0.0, noise_normal_std=0.002, model=tiny), tmp_path / "a")
+    normal_mode = Trainer(TrainConfig(noise_std=0.002, noise_mode="normal", model=tiny), tmp_path / "b")
+    assert torch.equal(only_normal.input_noise(scene, x), normal_mode.input_noise(scene, x))
+    sigma, sigma_n = 0.0015, 0.0025
+    mixed = Trainer(TrainConfig(noise_std=sigma, noise_normal_std=sigma_n, model=tiny), tmp_path / "c")
+    eps = mixed.input_noise(scene, x)
+    free = ~scene.cloth.pinned
+    along = (eps[free] * normals[free]).sum(-1)
+    tangential = eps[free] - along[:, None] * normals[free]
+    expected = (sigma**2 + sigma_n**2) ** 0.5
+    assert abs(float(along.std()) - expected) < 0.1 * expected
+    rms_per_direction = float(tangential.pow(2).sum(-1).mean().div(2).sqrt())
+    assert abs(rms_per_direction - sigma) < 0.1 * sigma
+    assert (eps[scene.cloth.pinned] == 0).all()
+    with pytest.raises(ValueError, match="σ must be >= 0"):
+        Trainer(TrainConfig(noise_normal_std=-0.001, model=tiny), tmp_path / "d")
+    cfg, _ = parse_args(["--out", str(tmp_path / "run"), "--noise-normal-std", "0.0025"])
+    assert cfg.noise_normal_std == 0.0025
