@@ -180,6 +180,11 @@ def aggregate(results: list[RunResult], key: str = "method") -> dict[str, dict[s
     return out
 
 
+def _cell(value: float) -> str:
+    """A surface-metric cell: two decimals, or an em dash for a method run without ``--surface-metrics``."""
+    return f"{value:.2f}" if np.isfinite(value) else "—"
+
+
 def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
     """Markdown table of :func:`aggregate` rows (keys ``method`` or ``method | outfit``)."""
     per_outfit = any(" | " in k for k in rows)
@@ -190,7 +195,7 @@ def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
             + "| strain mean % | strain max % | offset from skinning (cm RMS) | ms/frame | fallback frames | frames |")
     lines = [f"**{title}**", "", head, "|" + "---|" * ((12 if per_outfit else 11) + (2 if surface else 0))]
     for name, r in rows.items():
-        extra = f"| {r['l_coll_surface']:.2f} | {r['h_coll_surface']:.2f} " if surface else ""
+        extra = "".join(f"| {_cell(r.get(k, np.nan))} " for k in SURFACE_KEYS) if surface else ""
         lines.append(
             f"| {name} | {r['bend']:.4f} | {r['collision_loss'] * 1e6:.3f} | {r['l_coll']:.2f} | {r['h_coll']:.2f} "
             + extra

@@ -68,3 +68,17 @@ def test_eval_divergence_guard_flags(tmp_path):
     assert all(r["fallback"] == 0.0 for r in symptomatic.per_frame)
     with pytest.raises(ValueError, match="--max-skin-distance must be a positive distance"):
         main(common + ["--max-skin-distance", "0"])
+
+
+def test_markdown_table_marks_missing_surface_metrics_with_a_dash():
+    """Rows merged from runs with and without ``--surface-metrics``: the missing cells read "—", not "nan"."""
+    from smln.evaluate import markdown_table
+
+    base = {"bend": 0.05, "collision_loss": 6e-6, "l_coll": 1.5, "h_coll": 2.0, "strain_mean": 0.05,
+            "strain_max": 0.5, "offset_rms": 0.07, "ms_model": 40.0, "fallback_frames": 3.0, "frames": 100.0}
+    text = markdown_table({"full": {**base, "l_coll_surface": 1.234, "h_coll_surface": 0.5},
+                           "baseline": {**base, "l_coll_surface": float("nan"), "h_coll_surface": float("nan")}}, "t")
+    full, baseline = (next(line for line in text.splitlines() if line.startswith(f"| {m} "))
+                      for m in ("full", "baseline"))
+    assert "| 1.23 | 0.50 |" in full
+    assert "| — | — |" in baseline and "nan" not in text
