@@ -3,8 +3,8 @@
     python scripts/render_rollout_frames.py --outfit tshirt_jacket --motion 05_01_walk --frames 20 45 70 \
         --out docs/results/frames_tshirt_jacket.png
 
-Rows are methods (skinning and every checkpoint found in ``--checkpoints``), columns the requested frames; body in
-grey, layers in colour, inter-layer penetrating vertices in red.
+Rows are methods (skinning and every checkpoint found in ``--checkpoints``, or the ``--models LABEL=PATH`` given),
+columns the requested frames; body in grey, layers in colour, inter-layer penetrating vertices in red.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ def main() -> None:
     p.add_argument("--shape", default="female_average")
     p.add_argument("--frames", type=int, nargs="+", default=[20, 45, 70])
     p.add_argument("--checkpoints", default="checkpoints")
+    p.add_argument("--models", nargs="+", metavar="LABEL=PATH",
+                   help="rows to draw instead of the variants found in --checkpoints, e.g. old=runs/a/best new=runs/b/best")
     p.add_argument("--edge-length", type=float, default=0.035)
     p.add_argument("--view", default="front", choices=["front", "side", "back"])
     p.add_argument("--out", required=True)
@@ -44,10 +46,17 @@ def main() -> None:
     n = scene.num_frames
     a.frames = sorted({min(t, n - 1) for t in a.frames})
     methods: list[tuple[str, object | None]] = [("skinning", None)]
-    for v in ("full", "no_repulsion_layer", "baseline"):
-        path = Path(a.checkpoints) / v
-        if path.exists():
-            methods.append((v, load_checkpoint(path)[0]))
+    if a.models:
+        for spec in a.models:
+            label, sep, path = spec.partition("=")
+            if not sep or not label or not path:
+                p.error(f"--models takes LABEL=PATH, got {spec!r}")
+            methods.append((label, load_checkpoint(path)[0]))
+    else:
+        for v in ("full", "no_repulsion_layer", "baseline"):
+            path = Path(a.checkpoints) / v
+            if path.exists():
+                methods.append((v, load_checkpoint(path)[0]))
     faces = scene.cloth.faces.numpy()
     layer_of_face = scene.cloth.layer_index[scene.cloth.faces[:, 0]].numpy()
     fig, axes = plt.subplots(len(methods), len(a.frames), figsize=(3.2 * len(a.frames), 4.2 * len(methods)))

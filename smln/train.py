@@ -84,15 +84,19 @@ class TrainConfig:
     compile: bool = False  # the processor through torch.compile (forward and backward; smln.model.compiled)
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
+    layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
     model: dict[str, Any] = field(default_factory=dict)
 
     def weights(self) -> LossWeights:
-        """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline``."""
+        """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline`` (the
+        friction between layers, when set, is a friction term and stays on for all three variants)."""
         w = LossWeights.training()
         if self.repulsion_weight is not None:
             w.repulsion = self.repulsion_weight
         if self.collision_weight is not None:
             w.collision = self.collision_weight
+        if self.layer_friction_weight is not None:
+            w.layer_friction = self.layer_friction_weight
         if not VARIANTS[self.variant][1]:
             w.repulsion = 0.0
         return w
@@ -450,8 +454,11 @@ class Trainer:
         path = self.out / "log.csv"
         keys = ["step", "wall_s", "total", "stretch", "bending", "gravity", "inertia", "collision", "friction",
                 "repulsion", "grad_norm", "repulsion_mean", "val_strain_mean", "val_h_coll", "val_l_coll",
-                "val_frames", "val_exploded", "val_score"]
+                "val_frames", "val_exploded", "val_score", "layer_friction"]
         new = not path.exists()
+        if not new:  # a log begun before a column was added keeps its own columns (resume appends to it)
+            with open(path, newline="") as fh:
+                keys = next(csv.reader(fh), None) or keys
         with open(path, "a", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
             if new:
@@ -520,8 +527,10 @@ def plot_log(csv_path: Path, png_path: Path) -> None:
     if not rows:
         return
     terms = ["total", "stretch", "bending", "gravity", "inertia", "collision", "friction", "repulsion"]
+    if any(r.get("layer_friction") not in ("", None) for r in rows):
+        terms.append("layer_friction")
     vals = ["val_strain_mean", "val_h_coll", "val_l_coll", "val_frames"]
-    fig, axes = plt.subplots(3, 4, figsize=(16, 10))
+    fig, axes = plt.subplots(3 + (len(terms) > 8), 4, figsize=(16, 10 + 3.3 * (len(terms) > 8)))
     for ax, key in zip(axes.flat, terms + vals, strict=False):
         pts = [(float(r["step"]), float(r[key])) for r in rows if r.get(key) not in ("", None)]
         if not pts:
@@ -533,7 +542,7 @@ def plot_log(csv_path: Path, png_path: Path) -> None:
             v = np.convolve(v, np.ones(k) / k, mode="same")
         ax.plot(s, v)
         ax.set_title(key)
-        if key in ("stretch", "collision", "repulsion", "bending", "friction") and (v > 0).all():
+        if key in ("stretch", "collision", "repulsion", "bending", "friction", "layer_friction") and (v > 0).all():
             ax.set_yscale("log")
     fig.tight_layout()
     fig.savefig(png_path, dpi=70)
@@ -582,6 +591,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--validation-skin-guard", choices=SKIN_GUARDS,
                    help="the validation rollout's skinned-distance guard (smln.rollout.SKIN_GUARDS; default always: "
                         "a jacket swinging past 0.4 m in the pirouette counts as a divergence)")
+    p.add_argument("--layer-friction-weight", type=float,
+                   help="weight of the friction between adjacent layers (smln.losses.friction."
+                        "layer_friction_energy; default off; 1.5 = the body friction's λf)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
     args = p.parse_args(argv)
@@ -599,7 +611,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
-                      ("noise_normal_std", "noise_normal_std"),
+                      ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("validation_skin_guard", "validation_skin_guard")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))

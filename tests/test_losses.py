@@ -20,6 +20,7 @@ from smln.losses import (
     friction_energy,
     gravity_energy,
     inertia_energy,
+    layer_friction_energy,
     layer_pairs,
     repulsion_energy,
     stretch_energy,
@@ -198,6 +199,40 @@ def test_friction_contact_slip():
     assert math.isclose(e, expected, rel_tol=1e-3)
     # far from the body: no contact
     assert friction_energy(x_cur + 0.1 * top, x_cur + 0.1 * top + slip, body, body, normals, rest).item() == 0
+
+
+def test_layer_friction_is_the_coulomb_work_of_the_slip_between_layers():
+    """Outer sheet 4 mm above the inner one (in contact, radius 5 mm): sliding it 5 mm tangentially over a still
+    inner sheet costs mu g m_outer (sqrt(s^2 + c^2) - c); both sheets moving together, a purely normal move, or a
+    sheet 1 cm away cost nothing; the force is equal and opposite on the two layers."""
+    rest, x_cur = two_sheets(0.004)
+    pairs = layer_pairs(x_cur, rest)
+    normals = vertex_normals(x_cur, rest.faces)
+    slip = torch.zeros_like(x_cur)
+    slip[9:, 0] = 0.005
+    e = layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest).item()
+    c = 1e-4
+    m_outer = float(rest.mass[9:].sum())
+    assert math.isclose(e, rest.material.friction * GRAVITY * m_outer * (math.sqrt(0.005**2 + c * c) - c), rel_tol=1e-4)
+    together = torch.zeros_like(x_cur)
+    together[:, 0] = 0.005
+    assert layer_friction_energy(x_cur, x_cur + together, normals, pairs, rest).item() < 1e-12
+    normal_move = torch.zeros_like(x_cur)
+    normal_move[9:, 2] = -0.002
+    assert layer_friction_energy(x_cur, x_cur + normal_move, normals, pairs, rest).item() < 1e-12
+    far = x_cur.clone()
+    far[9:, 2] = 0.01
+    assert layer_friction_energy(far, far + slip, normals, pairs, rest).item() == 0.0
+    x_next = (x_cur + slip).requires_grad_(True)
+    layer_friction_energy(x_cur, x_next, normals, pairs, rest).backward()
+    g = x_next.grad
+    assert torch.allclose(g[9:].sum(0), -g[:9].sum(0), atol=1e-9) and float(g[9:, 0].sum()) > 0
+    # total_loss adds it only when its weight is set, for the baseline weights too (repulsion 0)
+    far_body = torch.tensor([[0.0, 0.0, -1.0], [1.0, 0, -1], [0, 1.0, -1]])  # 1 m below: no body contact
+    body = BodyStep.from_vertices(far_body, far_body, torch.tensor([[0, 1, 2]]))
+    _, off = total_loss(x_cur, x_cur, x_cur + slip, body, rest, LossWeights(repulsion=0.0))
+    _, on = total_loss(x_cur, x_cur, x_cur + slip, body, rest, LossWeights(repulsion=0.0, layer_friction=1.5))
+    assert "layer_friction" not in off and math.isclose(on["layer_friction"], e, rel_tol=1e-5)
 
 
 def test_gradcheck_float64_tiny_mesh():

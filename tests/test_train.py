@@ -172,7 +172,8 @@ def test_ema_update_is_the_moving_average():
 
 def test_variant_loss_weights():
     """full and no_repulsion_layer train with the repulsion loss (λr of LossWeights.training, or the flag);
-    baseline without it; every other weight is the paper's."""
+    baseline without it; every other weight is the paper's; the friction between layers is off by default and,
+    when set, on for every variant."""
     from smln.losses import LossWeights
     from smln.losses.total import TRAINING_REPULSION
     from smln.train import TrainConfig, parse_args
@@ -187,6 +188,10 @@ def test_variant_loss_weights():
     assert cfg.weights().repulsion == 1e3 == paper.repulsion
     cfg, _ = parse_args(["--out", "x", "--variant", "baseline", "--repulsion-weight", "1000"])
     assert cfg.weights().repulsion == 0.0
+    assert w.layer_friction == 0.0  # off unless asked for; then on for every variant (a friction term)
+    for variant in ("full", "baseline"):
+        cfg, _ = parse_args(["--out", "x", "--variant", variant, "--layer-friction-weight", "1.5"])
+        assert cfg.weights().layer_friction == 1.5
 
 
 def test_learning_rate_schedule_halves_and_restarts():

@@ -7,7 +7,7 @@ weights in :class:`LossWeights` carry the units.
 
 from smln.losses.bending import bending_energy
 from smln.losses.collision import COLLISION_EPS, collision_energy
-from smln.losses.friction import FRICTION_RADIUS, friction_energy
+from smln.losses.friction import FRICTION_RADIUS, LAYER_FRICTION_RADIUS, friction_energy, layer_friction_energy
 from smln.losses.gravity import gravity_energy
 from smln.losses.inertia import inertia_energy
 from smln.losses.repulsion import PAIR_RADIUS, REPULSION_EPS, layer_pairs, repulsion_energy
@@ -26,6 +26,8 @@ __all__ = [
     "bending_energy",
     "collision_energy",
     "friction_energy",
+    "layer_friction_energy",
+    "LAYER_FRICTION_RADIUS",
     "gravity_energy",
     "inertia_energy",
     "layer_pairs",

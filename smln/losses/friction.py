@@ -61,3 +61,59 @@ def friction_energy(
     c = SLIP_SMOOTHING
     slip = torch.sqrt(dot_cm(st, st) + c * c) - c
     return (rest.material.friction * g * rest.mass * contact * slip).sum()
+
+
+LAYER_FRICTION_RADIUS = 5e-3
+"""Contact distance between layers, meters: an outer vertex closer than this to its inner partner, along the
+partner's normal at t+1. Wider than the body's 3 mm because the repulsion term holds adjacent layers about its
+3 mm clearance apart (:data:`smln.losses.repulsion.REPULSION_EPS`): a jacket resting on a t-shirt sits there."""
+
+
+def layer_friction_energy(
+    x_cur: torch.Tensor,
+    x_next: torch.Tensor,
+    normals_next: torch.Tensor,
+    pairs: torch.Tensor,
+    rest: ClothRest,
+    radius: float = LAYER_FRICTION_RADIUS,
+    g: float = GRAVITY,
+) -> torch.Tensor:
+    """Friction work of an outer garment layer sliding over the layer beneath during one step.
+
+    The body term (:func:`friction_energy`) only holds the innermost layer: without this one a jacket lying on a
+    t-shirt slides on it as on ice, and on sloped shoulders gravity walks it off them over a few seconds of a
+    walk. Eq. 22 read for the layer beneath as the "adjacent face": for each cross-layer pair (i outer, j inner)
+    from :func:`smln.losses.repulsion.layer_pairs`, in contact when d = (x_i - x_j) . n_j < ``radius`` at t+1
+    (decided without gradient; a penetrated pair, d < 0, is in contact too):
+
+        s = (x_i^{t+1} - x_i^t) - (x_j^{t+1} - x_j^t)          slip of i relative to its partner
+        s^T = s - (s . n_j) n_j
+        E = sum_{pairs in contact} mu m_i g * (sqrt(||s^T||^2 + c^2) - c)
+
+    with the normal force approximated by the outer vertex's weight, as for the body. The gradient reaches both
+    vertices (equal and opposite slip forces); pairs with a pinned outer vertex are left out.
+
+    Args:
+        x_cur, x_next: (V, 3) cloth positions at t and t+1, meters.
+        normals_next: (V, 3) unit cloth vertex normals at t+1 (used as directions only, without gradient).
+        pairs: (P, 2) int64 (outer, inner) global vertex indices.
+        rest: masses, free mask, material (mu = ``rest.material.friction``).
+        radius: contact distance, meters; g: m/s^2.
+
+    Returns:
+        scalar energy, J (0 when there are no pairs).
+    """
+    if pairs.numel() == 0:
+        return x_next.sum() * 0.0
+    outer, inner = pairs[:, 0], pairs[:, 1]
+    with torch.no_grad():
+        n = normals_next.detach().index_select(0, inner)  # (P, 3)
+        d = ((x_next.detach().index_select(0, outer) - x_next.detach().index_select(0, inner)) * n).sum(-1)
+        contact = (d < radius).to(x_next.dtype) * rest.free.to(x_next.dtype).index_select(0, outer)
+        weight = rest.material.friction * g * rest.mass.index_select(0, outer) * contact
+    s = (x_next.index_select(0, outer) - x_cur.index_select(0, outer)) - (
+        x_next.index_select(0, inner) - x_cur.index_select(0, inner))
+    st = s - (s * n).sum(-1, keepdim=True) * n
+    c = SLIP_SMOOTHING
+    slip = torch.sqrt((st * st).sum(-1) + c * c) - c
+    return (weight * slip).sum()

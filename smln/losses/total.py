@@ -10,7 +10,7 @@ from smln.cloth import DT
 from smln.geometry import PointTree, build_tree, coordinate_major, nearest_vertices, vertex_normals, vertex_normals_cm
 from smln.losses.bending import bending_energy
 from smln.losses.collision import COLLISION_EPS, collision_energy
-from smln.losses.friction import friction_energy
+from smln.losses.friction import friction_energy, layer_friction_energy
 from smln.losses.gravity import gravity_energy
 from smln.losses.inertia import inertia_energy
 from smln.losses.repulsion import layer_pairs, repulsion_energy_cm
@@ -41,6 +41,9 @@ class LossWeights:
     collision: float = 1e4
     collision_eps: float = COLLISION_EPS
     """Clearance of the body penalty, meters (:data:`smln.losses.collision.COLLISION_EPS`, 3 mm)."""
+    layer_friction: float = 0.0
+    """Weight of the friction between adjacent layers (:func:`~smln.losses.friction.layer_friction_energy`);
+    0 = off (the paper's Eq. 22 and every run before session 11 hold the cloth against the body only)."""
 
     @classmethod
     def training(cls) -> LossWeights:
@@ -99,7 +102,8 @@ def total_loss(
     dt: float = DT,
     pairs: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """L = sum_k w_k E_k over stretch, bending, gravity, friction, repulsion, inertia and collision.
+    """L = sum_k w_k E_k over stretch, bending, gravity, friction, repulsion, inertia, collision (and, when its
+    weight is set, the friction between layers).
 
     Only ``x_next`` is expected to carry gradient (x_prev, x_cur are history). Pinned vertices of ``x_next``
     should already hold their skinned positions; gravity, inertia, friction and collision skip them, stretch
@@ -136,11 +140,15 @@ def total_loss(
             terms["friction"] = friction_energy(
                 x_cur, x_next, body.cur, body.next, body.normals_next, rest, idx=idx
             )
-    if w.repulsion and rest.num_layers > 1:
+    if (w.repulsion or w.layer_friction) and rest.num_layers > 1:
         if pairs is None:
             pairs = layer_pairs(x_cur.detach(), rest)
         xt = coordinate_major(x_next)
-        terms["repulsion"] = repulsion_energy_cm(xt, vertex_normals_cm(xt, rest.faces), pairs, rest)
+        nt = vertex_normals_cm(xt, rest.faces)
+        if w.repulsion:
+            terms["repulsion"] = repulsion_energy_cm(xt, nt, pairs, rest)
+        if w.layer_friction:
+            terms["layer_friction"] = layer_friction_energy(x_cur, x_next, nt.t(), pairs, rest)
     wd = asdict(w)
     loss = sum(wd[k] * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
