@@ -79,15 +79,19 @@ def method_frames(method: str, model, scene, num_frames: int, device: str = "cpu
 
 
 def summarise(
-    frames: Iterable[RolloutFrame], skinned: torch.Tensor | None = None, surface_scene=None
+    frames: Iterable[RolloutFrame], skinned: torch.Tensor | None = None, surface_scene=None,
+    rest: ClothRest | None = None,
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """Sequence metrics of a method's frames; with ``skinned`` (T, V, 3) also ``offset_rms``, the RMS distance
     (m) of the garment from its rigidly skinned position: how much it moves with its own dynamics; with a
     ``surface_scene`` (its cloth's faces and layers, its body's faces) also the point-to-triangle
-    ``l_coll_surface`` / ``h_coll_surface`` (%, ~80 ms per frame on the 24k-face body)."""
-    from smln.metrics import surface_h_coll, surface_l_coll
+    ``l_coll_surface`` / ``h_coll_surface`` (%, ~80 ms per frame on the 24k-face body); with ``rest`` (a
+    multi-layer cloth's) also ``layer_slip`` (m per frame, :func:`smln.metrics.layer_slip`; NaN on a frame that
+    or whose predecessor fell back to skinning, where the reset is no slip)."""
+    from smln.metrics import layer_slip, surface_h_coll, surface_l_coll
 
     rows = []
+    previous: RolloutFrame | None = None
     if surface_scene is not None:
         faces, layers = surface_scene.cloth.faces.numpy(), surface_scene.cloth.layer_index.numpy()
         body_faces = surface_scene.body.faces.numpy()
@@ -100,6 +104,11 @@ def summarise(
         if skinned is not None:
             d = fr.garment_positions - skinned[fr.index].numpy()
             m["offset_rms"] = float(np.sqrt((d**2).sum(-1).mean()))
+        if rest is not None and rest.num_layers > 1:
+            continuous = previous is not None and not (fr.fallback or previous.fallback)
+            m["layer_slip"] = layer_slip(previous.garment_positions, fr.garment_positions, rest) if continuous \
+                else float("nan")
+        previous = fr
         rows.append(m)
     seq = sequence_metrics(rows)
     seq["fallback_frames"] = float(sum(r["fallback"] for r in rows))
@@ -152,7 +161,8 @@ def evaluate(
                 kind = name if model is None else "model"
                 frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision,
                                           compiled, guards)
-                seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None)
+                seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None,
+                                              ClothRest.from_cloth(scene.cloth))
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
                           f"L-Coll {seq_metrics['l_coll']:.2f}% H-Coll {seq_metrics['h_coll']:.2f}% "
@@ -172,6 +182,9 @@ def aggregate(results: list[RunResult], key: str = "method") -> dict[str, dict[s
         w = np.array([r.metrics["num_frames"] for r in rs])
         row = {k: float(np.average([r.metrics.get(k, np.nan) for r in rs], weights=w)) for k in TABLE_KEYS
                if k not in ("strain_max", "fallback")}
+        slip = np.array([r.metrics.get("layer_slip", np.nan) for r in rs])
+        ok = np.isfinite(slip)  # runs without a continuous multi-layer frame have none
+        row["layer_slip"] = float(np.average(slip[ok], weights=w[ok])) if ok.any() else float("nan")
         row["strain_max"] = float(max(r.metrics.get("strain_max_max", np.nan) for r in rs))
         row["fallback_frames"] = float(sum(r.metrics.get("fallback_frames", 0) for r in rs))
         row["frames"] = float(w.sum())
@@ -181,7 +194,8 @@ def aggregate(results: list[RunResult], key: str = "method") -> dict[str, dict[s
 
 
 def _cell(value: float) -> str:
-    """A surface-metric cell: two decimals, or an em dash for a method run without ``--surface-metrics``."""
+    """A cell of an optional metric: two decimals, or an em dash where it was not measured (a method run
+    without ``--surface-metrics``, a single-layer outfit's layer slip)."""
     return f"{value:.2f}" if np.isfinite(value) else "—"
 
 
@@ -192,15 +206,16 @@ def markdown_table(rows: dict[str, dict[str, float]], title: str) -> str:
     first = "| method | outfit " if per_outfit else "| method "
     head = (first + "| Bend ↓ | Collision loss (mm²) ↓ | L-Coll % ↓ | H-Coll % ↓ "
             + ("| L-Coll surf. % ↓ | H-Coll surf. % ↓ " if surface else "")
-            + "| strain mean % | strain max % | offset from skinning (cm RMS) | ms/frame | fallback frames | frames |")
-    lines = [f"**{title}**", "", head, "|" + "---|" * ((12 if per_outfit else 11) + (2 if surface else 0))]
+            + "| strain mean % | strain max % | offset from skinning (cm RMS) | layer slip (mm/frame) | ms/frame "
+            "| fallback frames | frames |")
+    lines = [f"**{title}**", "", head, "|" + "---|" * ((13 if per_outfit else 12) + (2 if surface else 0))]
     for name, r in rows.items():
         extra = "".join(f"| {_cell(r.get(k, np.nan))} " for k in SURFACE_KEYS) if surface else ""
         lines.append(
             f"| {name} | {r['bend']:.4f} | {r['collision_loss'] * 1e6:.3f} | {r['l_coll']:.2f} | {r['h_coll']:.2f} "
             + extra
             + f"| {100 * r['strain_mean']:.2f} | {100 * r['strain_max']:.1f} | {100 * r['offset_rms']:.2f} "
-            f"| {r['ms_model']:.0f} "
+            f"| {_cell(1e3 * r.get('layer_slip', np.nan))} | {r['ms_model']:.0f} "
             f"| {int(r['fallback_frames'])} | {int(r['frames'])} |"
         )
     return "\n".join(lines) + "\n"

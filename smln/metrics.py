@@ -22,6 +22,10 @@ Per frame (:func:`frame_metrics`), with x the cloth at this frame and b the body
 - ``nan``: 1.0 if any coordinate is not finite, else 0.0. ``exploded``: 1.0 if ``nan`` or strain_max > 1
   (an edge doubled) or a vertex is more than 1 m from its nearest body vertex.
 
+Between two frames (:func:`layer_slip`, in :func:`smln.evaluate.summarise`): ``layer_slip`` (m per frame), the
+mean tangential slip of outer-layer vertices over the layer beneath where they touch it (within 5 mm): a jacket
+carried by the shoulders of a t-shirt slips ~0; one gliding off them slips steadily.
+
 Per-vertex masks for the viewer: ``body_penetration`` (V,) (the h_coll test) and ``layer_penetration`` (V,)
 (vertex of layer k >= 1 behind layer k-1, the per-pair test; False on layer 0).
 """
@@ -351,3 +355,49 @@ def surface_l_coll(x: torch.Tensor | np.ndarray, faces: torch.Tensor | np.ndarra
         return 0.0
     mask = surface_layer_penetration(x, faces, li)
     return 100.0 * float(mask[li == top].mean())
+
+
+# ----------------------------------------------------------------------------------------- layer slip
+
+
+def layer_slip(x_prev: torch.Tensor | np.ndarray, x_cur: torch.Tensor | np.ndarray, rest: ClothRest,
+               radius: float | None = None) -> float:
+    """Mean tangential slip between touching layers from one frame to the next, meters (NaN if none touch).
+
+    Pairs are each outer-layer vertex with its nearest vertex of the layer beneath at ``x_prev``
+    (:func:`smln.losses.repulsion.layer_pairs`, within 4 cm); a pair touches when the outer vertex is less than
+    ``radius`` (default :data:`smln.losses.friction.LAYER_FRICTION_RADIUS`, 5 mm) in front of its partner along
+    the partner's normal at ``x_cur``. Its slip is the relative displacement s = Δx_outer - Δx_inner minus its part
+    along that normal; the result is the mean |s| over touching pairs with a free outer vertex.
+
+    Args:
+        x_prev, x_cur: (V, 3) cloth positions at two consecutive frames, meters.
+        rest: layer slices, faces, free mask.
+        radius: contact distance, meters.
+
+    Returns:
+        float, meters per frame.
+    """
+    from smln.geometry import vertex_normals
+    from smln.losses.friction import LAYER_FRICTION_RADIUS
+    from smln.losses.repulsion import layer_pairs
+
+    if rest.num_layers < 2:
+        return float("nan")
+    radius = LAYER_FRICTION_RADIUS if radius is None else radius
+    xp = torch.as_tensor(np.asarray(x_prev, dtype=np.float32))
+    xc = torch.as_tensor(np.asarray(x_cur, dtype=np.float32))
+    if not (torch.isfinite(xp).all() and torch.isfinite(xc).all()):
+        return float("nan")
+    pairs = layer_pairs(xp, rest)
+    if pairs.numel() == 0:
+        return float("nan")
+    outer, inner = pairs[:, 0], pairs[:, 1]
+    n = vertex_normals(xc, rest.faces)[inner]
+    touching = (((xc[outer] - xc[inner]) * n).sum(-1) < radius) & (rest.free[outer] > 0)
+    if not touching.any():
+        return float("nan")
+    s = (xc[outer] - xp[outer]) - (xc[inner] - xp[inner])
+    st = s - (s * n).sum(-1, keepdim=True) * n
+    return float(st.norm(dim=-1)[touching].mean())
+

@@ -287,3 +287,33 @@ def test_surface_h_coll_closed_body():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     r = np.where(np.arange(400) < 100, 0.19, 0.21)  # 100 of 400 points 1 cm inside, the rest 1 cm outside
     assert surface_h_coll(d * r[:, None], v, f) == pytest.approx(25.0)
+
+
+def test_layer_slip_measures_the_tangential_slide_of_touching_layers():
+    """Outer sheet 4 mm above the inner one: sliding it 2 mm along x reads 2 mm; both sheets moving together, or
+    the outer one moving along the normal only, read 0; sheets 1 cm apart (not touching) and a single layer read
+    NaN."""
+    import math
+
+    import torch
+
+    from smln.losses import ClothRest
+    from smln.metrics import layer_slip
+    from tests.test_losses import grid, make_cloth, two_sheets
+
+    rest, x = two_sheets(0.004)
+    slide = x.clone()
+    slide[9:, 0] += 0.002
+    assert math.isclose(layer_slip(x, slide, rest), 0.002, rel_tol=1e-4)
+    assert layer_slip(x, x + torch.tensor([0.01, -0.02, 0.005]), rest) < 1e-7
+    lift = x.clone()
+    lift[9:, 2] -= 0.001
+    assert layer_slip(x, lift, rest) < 1e-7
+    _, apart = two_sheets(0.01)
+    moved = apart.clone()
+    moved[9:, 0] += 0.002
+    assert math.isnan(layer_slip(apart, moved, rest))
+    v, f = grid(3, size=0.02)
+    single = ClothRest.from_cloth(make_cloth([(v, f)]))
+    assert math.isnan(layer_slip(torch.as_tensor(v, dtype=torch.float32), torch.as_tensor(v, dtype=torch.float32),
+                                 single))
