@@ -323,6 +323,9 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
         return results
     set_threads(a.threads)
     methods: dict[str, object | None] = {}
+    repeated = sorted({ck for ck in a.checkpoint if a.checkpoint.count(ck) > 1})
+    if repeated:
+        raise ValueError(f"--checkpoint {repeated[0]} is given more than once")
     for ck in a.checkpoint:
         model, card = load_checkpoint(ck)
         name = card.get("variant") or Path(ck).name
@@ -335,6 +338,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
             name += f" [guard skin {a.max_skin_distance:g} m, body {a.max_body_distance:g} m]"
         if a.skin_guard != "always":
             name += f" [skin guard {a.skin_guard}]"
+        if name in methods:  # two checkpoints of one variant (e.g. an old and a new `full`): name them by path
+            name = f"{name} ({ck})"
         methods[name] = model
     if not a.no_skinning:
         methods["skinning"] = None

@@ -82,3 +82,20 @@ def test_markdown_table_marks_missing_surface_metrics_with_a_dash():
                       for m in ("full", "baseline"))
     assert "| 1.23 | 0.50 |" in full
     assert "| — | — |" in baseline and "nan" not in text
+
+
+def test_two_checkpoints_of_one_variant_get_a_row_each(tmp_path):
+    """An old and a new ``full`` checkpoint side by side: the second row is named by its path instead of
+    overwriting the first; the same path twice is refused."""
+    import shutil
+
+    from smln.evaluate import main
+
+    other = tmp_path / "old_full"
+    shutil.copytree(CHECKPOINT, other)
+    args = ["--outfits", "tshirt_jacket", "--motions", "05_01_walk", "--frames", "4", "--edge-length", "0.035",
+            "--threads", "1", "--no-skinning"]
+    results = main(["--checkpoint", str(CHECKPOINT), "--checkpoint", str(other), *args])
+    assert sorted(r.method for r in results) == ["full", f"full ({other})"]
+    with pytest.raises(ValueError, match="more than once"):
+        main(["--checkpoint", str(CHECKPOINT), "--checkpoint", str(CHECKPOINT), *args])
