@@ -28,7 +28,8 @@ def main() -> None:
     p.add_argument("--frames", type=int, nargs="+", default=[20, 45, 70])
     p.add_argument("--checkpoints", default="checkpoints")
     p.add_argument("--models", nargs="+", metavar="LABEL=PATH",
-                   help="rows to draw instead of the variants found in --checkpoints, e.g. old=runs/a/best new=runs/b/best")
+                   help="rows to draw instead of the variants found in --checkpoints, "
+                        "e.g. old=runs/a/best new=runs/b/best")
     p.add_argument("--edge-length", type=float, default=0.035)
     p.add_argument("--view", default="front", choices=["front", "side", "back"])
     p.add_argument("--out", required=True)
