@@ -81,9 +81,11 @@ def layer_friction_energy(
     """Friction work of an outer garment layer sliding over the layer beneath during one step.
 
     The body term (:func:`friction_energy`) only holds the innermost layer: without this one a jacket lying on a
-    t-shirt slides on it as on ice, and on sloped shoulders gravity walks it off them over a few seconds of a
-    walk. Eq. 22 read for the layer beneath as the "adjacent face": for each cross-layer pair (i outer, j inner)
-    from :func:`smln.losses.repulsion.layer_pairs`, in contact when d = (x_i - x_j) . n_j < ``radius`` at t+1
+    t-shirt slides on it as on ice (the learned models let an open jacket sink off the shoulders over a walk
+    3-4x faster than a physics simulator; at weight 1.5 this term did not measurably slow that after 24k
+    fine-tuning steps, docs/RESULTS.md, session 11). Eq. 22 read for the layer beneath as the "adjacent face":
+    for each cross-layer pair (i outer, j inner) from :func:`smln.losses.repulsion.layer_pairs`, in contact
+    when d = (x_i - x_j) . n_j < ``radius`` at t+1
     (decided without gradient; a penetrated pair, d < 0, is in contact too):
 
         s = (x_i^{t+1} - x_i^t) - (x_j^{t+1} - x_j^t)          slip of i relative to its partner
