@@ -156,13 +156,13 @@ def evaluate(
         for outfit in outfits:
             scene = make_scene(outfit, shape, motion, edge_length=edge_length, body_sequence=seq)
             n = scene.num_frames
+            rest = ClothRest.from_cloth(scene.cloth)  # for the layer slip of every method's frames
             for name, model in methods.items():
                 t0 = time.time()
                 kind = name if model is None else "model"
                 frames_it = method_frames(kind, model, scene, n, device, project_body, project_layers, precision,
                                           compiled, guards)
-                seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None,
-                                              ClothRest.from_cloth(scene.cloth))
+                seq_metrics, rows = summarise(frames_it, scene.skinned, scene if surface_metrics else None, rest)
                 if progress:
                     print(f"  {name:20s} {outfit:26s} {motion:36s} {n:4d} frames "
                           f"L-Coll {seq_metrics['l_coll']:.2f}% H-Coll {seq_metrics['h_coll']:.2f}% "

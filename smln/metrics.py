@@ -379,7 +379,7 @@ def layer_slip(x_prev: torch.Tensor | np.ndarray, x_cur: torch.Tensor | np.ndarr
         float, meters per frame.
     """
     from smln.geometry import vertex_normals
-    from smln.losses.friction import LAYER_FRICTION_RADIUS
+    from smln.losses.friction import LAYER_FRICTION_RADIUS, layer_contact_slip
     from smln.losses.repulsion import layer_pairs
 
     if rest.num_layers < 2:
@@ -392,12 +392,8 @@ def layer_slip(x_prev: torch.Tensor | np.ndarray, x_cur: torch.Tensor | np.ndarr
     pairs = layer_pairs(xp, rest)
     if pairs.numel() == 0:
         return float("nan")
-    outer, inner = pairs[:, 0], pairs[:, 1]
-    n = vertex_normals(xc, rest.faces)[inner]
-    touching = (((xc[outer] - xc[inner]) * n).sum(-1) < radius) & (rest.free[outer] > 0)
+    st, touching = layer_contact_slip(xp, xc, vertex_normals(xc, rest.faces), pairs, rest, radius)
     if not touching.any():
         return float("nan")
-    s = (xc[outer] - xp[outer]) - (xc[inner] - xp[inner])
-    st = s - (s * n).sum(-1, keepdim=True) * n
     return float(st.norm(dim=-1)[touching].mean())
 

@@ -69,6 +69,41 @@ partner's normal at t+1. Wider than the body's 3 mm because the repulsion term h
 3 mm clearance apart (:data:`smln.losses.repulsion.REPULSION_EPS`): a jacket resting on a t-shirt sits there."""
 
 
+def layer_contact_slip(
+    x_cur: torch.Tensor,
+    x_next: torch.Tensor,
+    normals_next: torch.Tensor,
+    pairs: torch.Tensor,
+    rest: ClothRest,
+    radius: float = LAYER_FRICTION_RADIUS,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Tangential slip of each cross-layer pair over one step, and whether the pair touches.
+
+    For pair (i outer, j inner): s = (x_i^{t+1} - x_i^t) - (x_j^{t+1} - x_j^t), minus its part along n_j (j's unit
+    normal at t+1, a direction only: no gradient); the pair touches when (x_i - x_j) . n_j < ``radius`` at t+1
+    and i is free (decided without gradient). Shared by :func:`layer_friction_energy` and
+    :func:`smln.metrics.layer_slip`.
+
+    Args:
+        x_cur, x_next: (V, 3) cloth positions at t and t+1, meters (x_next may carry gradient).
+        normals_next: (V, 3) unit cloth vertex normals at t+1.
+        pairs: (P, 2) int64 (outer, inner) global vertex indices.
+        rest: free mask.
+        radius: contact distance, meters.
+
+    Returns:
+        (P, 3) tangential slip, meters; (P,) bool touching.
+    """
+    outer, inner = pairs[:, 0], pairs[:, 1]
+    with torch.no_grad():
+        n = normals_next.detach().index_select(0, inner)
+        d = ((x_next.detach().index_select(0, outer) - x_next.detach().index_select(0, inner)) * n).sum(-1)
+        touching = (d < radius) & (rest.free.index_select(0, outer) > 0)
+    s = (x_next.index_select(0, outer) - x_cur.index_select(0, outer)) - (
+        x_next.index_select(0, inner) - x_cur.index_select(0, inner))
+    return s - (s * n).sum(-1, keepdim=True) * n, touching
+
+
 def layer_friction_energy(
     x_cur: torch.Tensor,
     x_next: torch.Tensor,
@@ -107,15 +142,9 @@ def layer_friction_energy(
     """
     if pairs.numel() == 0:
         return x_next.sum() * 0.0
-    outer, inner = pairs[:, 0], pairs[:, 1]
+    st, touching = layer_contact_slip(x_cur, x_next, normals_next, pairs, rest, radius)
     with torch.no_grad():
-        n = normals_next.detach().index_select(0, inner)  # (P, 3)
-        d = ((x_next.detach().index_select(0, outer) - x_next.detach().index_select(0, inner)) * n).sum(-1)
-        contact = (d < radius).to(x_next.dtype) * rest.free.to(x_next.dtype).index_select(0, outer)
-        weight = rest.material.friction * g * rest.mass.index_select(0, outer) * contact
-    s = (x_next.index_select(0, outer) - x_cur.index_select(0, outer)) - (
-        x_next.index_select(0, inner) - x_cur.index_select(0, inner))
-    st = s - (s * n).sum(-1, keepdim=True) * n
+        weight = rest.material.friction * g * rest.mass.index_select(0, pairs[:, 0]) * touching.to(x_next.dtype)
     c = SLIP_SMOOTHING
     slip = torch.sqrt((st * st).sum(-1) + c * c) - c
     return (weight * slip).sum()
