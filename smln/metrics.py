@@ -392,7 +392,7 @@ def layer_slip(x_prev: torch.Tensor | np.ndarray, x_cur: torch.Tensor | np.ndarr
     pairs = layer_pairs(xp, rest)
     if pairs.numel() == 0:
         return float("nan")
-    st, touching = layer_contact_slip(xp, xc, vertex_normals(xc, rest.faces), pairs, rest, radius)
+    st, touching, _ = layer_contact_slip(xp, xc, vertex_normals(xc, rest.faces), pairs, rest, radius)
     if not touching.any():
         return float("nan")
     return float(st.norm(dim=-1)[touching].mean())

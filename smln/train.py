@@ -38,6 +38,7 @@ from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
 NOISE_MODES = ("isotropic", "normal")  # TrainConfig.noise_mode, see Trainer.input_noise
+LAYER_FRICTION_NORMALS = ("weight", "contact")  # TrainConfig.layer_friction_normal, see LossWeights
 
 VARIANTS = {
     # name: (repulsion layer on, repulsion loss on)  -- the paper's Table 3 rows
@@ -85,6 +86,7 @@ class TrainConfig:
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
+    layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
     model: dict[str, Any] = field(default_factory=dict)
 
     def weights(self) -> LossWeights:
@@ -97,6 +99,10 @@ class TrainConfig:
             w.collision = self.collision_weight
         if self.layer_friction_weight is not None:
             w.layer_friction = self.layer_friction_weight
+        if self.layer_friction_normal not in LAYER_FRICTION_NORMALS:
+            raise ValueError(f"layer_friction_normal must be one of {LAYER_FRICTION_NORMALS}, "
+                             f"got {self.layer_friction_normal!r}")
+        w.layer_friction_contact = self.layer_friction_normal == "contact"
         if not VARIANTS[self.variant][1]:
             w.repulsion = 0.0
         return w
@@ -594,6 +600,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--layer-friction-weight", type=float,
                    help="weight of the friction between adjacent layers (smln.losses.friction."
                         "layer_friction_energy; default off; 1.5 = the body friction's λf)")
+    p.add_argument("--layer-friction-normal", choices=LAYER_FRICTION_NORMALS,
+                   help="the layer friction's normal force: weight (m g, default) or contact (m g + the repulsion "
+                        "loss's push, lagged; baseline has none and keeps the weight)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
     args = p.parse_args(argv)
@@ -612,6 +621,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
+                      ("layer_friction_normal", "layer_friction_normal"),
                       ("validation_skin_guard", "validation_skin_guard")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))

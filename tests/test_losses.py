@@ -235,6 +235,42 @@ def test_layer_friction_is_the_coulomb_work_of_the_slip_between_layers():
     assert "layer_friction" not in off and math.isclose(on["layer_friction"], e, rel_tol=1e-5)
 
 
+def test_layer_friction_normal_force_adds_the_lagged_repulsion_push():
+    """With contact_stiffness k the normal force of a pair at gap d is m g + 3 k (eps - d)^2, the push of the
+    repulsion term k (eps - d)^3 (Eq. 25), capped at d = 0 for an interpenetrated pair; beyond eps it is the weight
+    alone, and the normal force carries no gradient (the slip does)."""
+    k, eps, c, s = 1e4, 3e-3, 1e-4, 0.005
+    for gap, push in ((0.001, 3 * k * (eps - 0.001) ** 2), (0.004, 0.0), (-0.002, 3 * k * eps**2)):
+        rest, x_cur = two_sheets(0.004)
+        x_cur[9:, 2] = gap
+        pairs = layer_pairs(two_sheets(0.004)[1], rest)
+        normals = vertex_normals(x_cur, rest.faces)
+        slip = torch.zeros_like(x_cur)
+        slip[9:, 0] = s
+        mu, m = rest.material.friction, rest.mass[9:].double()
+        expected = float((mu * (GRAVITY * m + push)).sum()) * (math.sqrt(s * s + c * c) - c)
+        e = layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest, contact_stiffness=k, eps=eps)
+        assert math.isclose(e.item(), expected, rel_tol=1e-4), (gap, e.item(), expected)
+        weight_only = layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest).item()
+        assert (weight_only < e.item()) == (push > 0)
+    # total_loss uses the repulsion weight as k when asked to, and nothing changes without a repulsion term
+    rest, x_cur = two_sheets(0.001)
+    slip = torch.zeros_like(x_cur)
+    slip[9:, 0] = s
+    far_body = torch.tensor([[0.0, 0.0, -1.0], [1.0, 0, -1], [0, 1.0, -1]])
+    body = BodyStep.from_vertices(far_body, far_body, torch.tensor([[0, 1, 2]]))
+    normals = vertex_normals(x_cur + slip, rest.faces)
+    pairs = layer_pairs(x_cur, rest)
+    on = total_loss(x_cur, x_cur, x_cur + slip, body, rest,
+                    LossWeights(repulsion=k, layer_friction=1.5, layer_friction_contact=True))[1]
+    assert math.isclose(on["layer_friction"], layer_friction_energy(
+        x_cur, x_cur + slip, normals, pairs, rest, contact_stiffness=k).item(), rel_tol=1e-5)
+    no_rep = total_loss(x_cur, x_cur, x_cur + slip, body, rest,
+                        LossWeights(repulsion=0.0, layer_friction=1.5, layer_friction_contact=True))[1]
+    assert math.isclose(no_rep["layer_friction"], layer_friction_energy(
+        x_cur, x_cur + slip, normals, pairs, rest).item(), rel_tol=1e-5)
+
+
 def test_gradcheck_float64_tiny_mesh():
     pair = (np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0.1], [0.5, -1, 0.2]]), np.array([[0, 1, 2], [1, 0, 3]]))
     rest = ClothRest.from_cloth(

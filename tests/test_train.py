@@ -192,6 +192,12 @@ def test_variant_loss_weights():
     for variant in ("full", "baseline"):
         cfg, _ = parse_args(["--out", "x", "--variant", variant, "--layer-friction-weight", "1.5"])
         assert cfg.weights().layer_friction == 1.5
+        assert not cfg.weights().layer_friction_contact  # the weight alone unless asked for
+        cfg, _ = parse_args(["--out", "x", "--variant", variant, "--layer-friction-weight", "1.5",
+                             "--layer-friction-normal", "contact"])
+        assert cfg.weights().layer_friction_contact
+    with pytest.raises(ValueError, match="layer_friction_normal"):
+        TrainConfig(variant="full", layer_friction_normal="pressure").weights()
 
 
 def test_learning_rate_schedule_halves_and_restarts():

@@ -6,6 +6,7 @@ import torch
 
 from smln.cloth import GRAVITY
 from smln.geometry import PointTree, coordinate_major, dot_cm, signed_distance_along_normals
+from smln.losses.repulsion import REPULSION_EPS
 from smln.losses.rest import ClothRest
 
 FRICTION_RADIUS = 3e-3
@@ -76,8 +77,8 @@ def layer_contact_slip(
     pairs: torch.Tensor,
     rest: ClothRest,
     radius: float = LAYER_FRICTION_RADIUS,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tangential slip of each cross-layer pair over one step, and whether the pair touches.
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Tangential slip of each cross-layer pair over one step, whether the pair touches, and its gap.
 
     For pair (i outer, j inner): s = (x_i^{t+1} - x_i^t) - (x_j^{t+1} - x_j^t), minus its part along n_j (j's unit
     normal at t+1, a direction only: no gradient); the pair touches when (x_i - x_j) . n_j < ``radius`` at t+1
@@ -92,7 +93,7 @@ def layer_contact_slip(
         radius: contact distance, meters.
 
     Returns:
-        (P, 3) tangential slip, meters; (P,) bool touching.
+        (P, 3) tangential slip, meters; (P,) bool touching; (P,) signed gap d at t+1, meters (no gradient).
     """
     outer, inner = pairs[:, 0], pairs[:, 1]
     with torch.no_grad():
@@ -101,7 +102,7 @@ def layer_contact_slip(
         touching = (d < radius) & (rest.free.index_select(0, outer) > 0)
     s = (x_next.index_select(0, outer) - x_cur.index_select(0, outer)) - (
         x_next.index_select(0, inner) - x_cur.index_select(0, inner))
-    return s - (s * n).sum(-1, keepdim=True) * n, touching
+    return s - (s * n).sum(-1, keepdim=True) * n, touching, d
 
 
 def layer_friction_energy(
@@ -112,6 +113,8 @@ def layer_friction_energy(
     rest: ClothRest,
     radius: float = LAYER_FRICTION_RADIUS,
     g: float = GRAVITY,
+    contact_stiffness: float = 0.0,
+    eps: float = REPULSION_EPS,
 ) -> torch.Tensor:
     """Friction work of an outer garment layer sliding over the layer beneath during one step.
 
@@ -127,8 +130,18 @@ def layer_friction_energy(
         s^T = s - (s . n_j) n_j
         E = sum_{pairs in contact} mu m_i g * (sqrt(||s^T||^2 + c^2) - c)
 
-    with the normal force approximated by the outer vertex's weight, as for the body. The gradient reaches both
-    vertices (equal and opposite slip forces); pairs with a pinned outer vertex are left out.
+    with the normal force N approximated by the outer vertex's weight (N = m_i g), as for the body. With
+    ``contact_stiffness`` k > 0 (the repulsion loss's λr) the pair's contact force is added to it, lagged (no
+    gradient) as in IPC's friction:
+
+        N = m_i g + 3 k (eps - max(d, 0))_+^2          the push of k (eps - d)_+^3 (Eq. 25) at d, capped at d = 0
+        E = sum_{pairs in contact} mu N (sqrt(||s^T||^2 + c^2) - c)
+
+    The weight alone cannot hold a garment where it hangs: a jacket's shoulder vertices carry the weight of the
+    panels below them through the fabric's tension, and press into the t-shirt with it. The cap keeps an
+    interpenetrated pair (d < 0, a failure of the repulsion) from gluing the layers together.
+    The gradient reaches both vertices (equal and opposite slip forces); pairs with a pinned outer vertex are
+    left out.
 
     Args:
         x_cur, x_next: (V, 3) cloth positions at t and t+1, meters.
@@ -136,15 +149,19 @@ def layer_friction_energy(
         pairs: (P, 2) int64 (outer, inner) global vertex indices.
         rest: masses, free mask, material (mu = ``rest.material.friction``).
         radius: contact distance, meters; g: m/s^2.
+        contact_stiffness: k, J/m^3 (0 = the weight alone); eps: the repulsion clearance, meters.
 
     Returns:
         scalar energy, J (0 when there are no pairs).
     """
     if pairs.numel() == 0:
         return x_next.sum() * 0.0
-    st, touching = layer_contact_slip(x_cur, x_next, normals_next, pairs, rest, radius)
+    st, touching, d = layer_contact_slip(x_cur, x_next, normals_next, pairs, rest, radius)
     with torch.no_grad():
-        weight = rest.material.friction * g * rest.mass.index_select(0, pairs[:, 0]) * touching.to(x_next.dtype)
+        normal_force = g * rest.mass.index_select(0, pairs[:, 0])
+        if contact_stiffness > 0:
+            normal_force = normal_force + 3.0 * contact_stiffness * torch.clamp(eps - d.clamp(min=0.0), min=0.0) ** 2
+        weight = rest.material.friction * normal_force * touching.to(x_next.dtype)
     c = SLIP_SMOOTHING
     slip = torch.sqrt((st * st).sum(-1) + c * c) - c
     return (weight * slip).sum()

@@ -44,6 +44,9 @@ class LossWeights:
     layer_friction: float = 0.0
     """Weight of the friction between adjacent layers (:func:`~smln.losses.friction.layer_friction_energy`);
     0 = off (the paper's Eq. 22 and every run before session 11 hold the cloth against the body only)."""
+    layer_friction_contact: bool = False
+    """Add the repulsion term's contact force (k = ``repulsion``) to the weight as the layer friction's normal force
+    (session 12); off = the weight alone (session 11). Nothing changes where ``repulsion`` is 0 (baseline)."""
 
     @classmethod
     def training(cls) -> LossWeights:
@@ -148,9 +151,11 @@ def total_loss(
         if w.repulsion:
             terms["repulsion"] = repulsion_energy_cm(xt, nt, pairs, rest)
         if w.layer_friction:
-            terms["layer_friction"] = layer_friction_energy(x_cur, x_next, nt.t(), pairs, rest)
+            terms["layer_friction"] = layer_friction_energy(
+                x_cur, x_next, nt.t(), pairs, rest,
+                contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0)
     wd = asdict(w)
-    loss = sum(wd[k] * v for k, v in terms.items())
+    loss = sum(float(wd[k]) * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
     values["total"] = float(loss.detach())
     return loss, values

@@ -1,0 +1,44 @@
+"""bench/layer_sink.py: the top band of the outer layer and its sink below skinning (analytic cases)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("bench_layer_sink", ROOT / "bench" / "layer_sink.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_top_band_takes_the_outer_layers_highest_vertices_only():
+    bench = _bench()
+    z = np.array([1.50, 1.45, 1.30, 1.49, 1.40, 1.20, 1.00])
+    vertices = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+    layer = np.array([0, 0, 0, 1, 1, 1, 1])  # the inner layer is higher, but only the outer one counts
+    assert bench.top_band(vertices, layer, band=0.10).tolist() == [3, 4]
+    assert bench.top_band(vertices, layer, band=0.0).tolist() == [3]
+    assert bench.top_band(vertices, np.zeros(7, int), band=0.06).tolist() == [0, 1, 3]
+
+
+def test_band_sink_is_the_mean_drop_below_skinning_in_mm():
+    bench = _bench()
+    rng = np.random.default_rng(0)
+    skinned = rng.normal(size=(4, 6, 3))
+    moved = skinned.copy()
+    moved[:, :, 2] -= np.array([0.0, 0.01, 0.02, -0.005])[:, None]  # down 0, 10, 20 mm, up 5 mm
+    moved[:, :, :2] += 0.3  # sideways motion does not count
+    band = np.array([1, 2, 4])
+    assert np.allclose(bench.band_sink(moved, skinned, band), [0.0, 10.0, 20.0, -5.0])
+    moved[:, 0, 2] -= 1.0  # a vertex outside the band does not count
+    assert np.allclose(bench.band_sink(moved, skinned, band), [0.0, 10.0, 20.0, -5.0])
