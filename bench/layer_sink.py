@@ -7,7 +7,8 @@ this script measures it: the outermost layer's *top band* (its vertices within `
 vertex in the clip's first skinned frame: the shoulders and collar, arms down) and, per frame, how far the band's
 mean height lies below the same vertices skinned onto the body (mm; 0 for skinning by construction, positive =
 sunk). Also printed: the mean
-tangential slip of touching layer pairs (:func:`smln.metrics.layer_slip`, mm/frame) over the clip.
+tangential slip of touching layer pairs (:func:`smln.metrics.layer_slip`, mm/frame) over the clip (frames at and
+after a fallback to skinning left out, as in ``smln eval``).
 
 Run: ``python bench/layer_sink.py --checkpoints shipped=checkpoints/full [other=PATH ...] [--outfit tshirt_jacket]
 [--motion 05_01_walk] [--frames 100] [--report 10 30 50 70 90] [--json OUT]`` (about 20 s per checkpoint and 100
@@ -58,7 +59,8 @@ def measure(checkpoint: str, scene, frames: int, band: np.ndarray) -> dict:
     out = list(rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=frames, fallback=True))
     x = np.stack([f.garment_positions for f in out])
     sink = band_sink(x, scene.skinned[:frames].numpy(), band)
-    slips = [layer_slip(x[t - 1], x[t], scene.rest) for t in range(1, frames)]
+    slips = [layer_slip(x[t - 1], x[t], scene.rest) for t in range(1, frames)
+             if not (out[t].fallback or out[t - 1].fallback)]  # a reset to skinning is no slip
     return {"checkpoint": checkpoint, "sink_mm": sink.tolist(), "fallback_frames": int(sum(f.fallback for f in out)),
             "layer_slip_mm": 1e3 * float(np.nanmean(slips))}
 
