@@ -155,7 +155,7 @@ def total_loss(
                 x_cur, x_next, nt.t(), pairs, rest,
                 contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0)
     wd = asdict(w)
-    loss = sum(float(wd[k]) * v for k, v in terms.items())
+    loss = sum(wd[k] * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
     values["total"] = float(loss.detach())
     return loss, values
