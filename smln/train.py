@@ -85,6 +85,7 @@ class TrainConfig:
     compile: bool = False  # the processor through torch.compile (forward and backward; smln.model.compiled)
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
+    collision_eps: float | None = None  # None = COLLISION_EPS (3 mm); the body penalty's clearance, m (session 13)
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
     layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
     model: dict[str, Any] = field(default_factory=dict)
@@ -97,6 +98,10 @@ class TrainConfig:
             w.repulsion = self.repulsion_weight
         if self.collision_weight is not None:
             w.collision = self.collision_weight
+        if self.collision_eps is not None:
+            if not 0.0 <= self.collision_eps < 0.05:
+                raise ValueError(f"collision_eps must be in [0, 0.05) m, got {self.collision_eps!r}")
+            w.collision_eps = self.collision_eps
         if self.layer_friction_weight is not None:
             w.layer_friction = self.layer_friction_weight
         if self.layer_friction_normal not in LAYER_FRICTION_NORMALS:
@@ -605,6 +610,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                         "loss's push, lagged; baseline has none and keeps the weight)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
+    p.add_argument("--collision-eps", type=float,
+                   help="clearance ε of that penalty, m (default smln.losses.collision.COLLISION_EPS, 3e-3): the "
+                        "body term pushes cloth out to ε, H-Coll counts it inside the body at 0")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -619,6 +627,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
+                      ("collision_eps", "collision_eps"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),

@@ -338,3 +338,25 @@ def test_total_loss_uses_the_collision_clearance_of_the_weights():
     _, wide = total_loss(x, x, x, step, rest, LossWeights(**only, collision_eps=6e-3))
     assert default["collision"] == 0.0  # outside the 3 mm clearance
     assert math.isclose(wide["collision"], 4 * 0.002**3, rel_tol=3e-2)  # 2 mm inside a 6 mm clearance
+
+
+def test_body_friction_contact_follows_the_collision_clearance():
+    """A vertex resting 4 mm off the body is outside the default 3 mm contact band (no friction on its slip) and
+    inside a 4.5 mm clearance, where the body penalty holds resting cloth: there it pays mu m g |slip|."""
+    s = trimesh.creation.icosphere(subdivisions=4)
+    body = torch.as_tensor(s.vertices, dtype=torch.float32)
+    v, f = grid(2, size=0.01)
+    cloth = make_cloth([(v, f)])
+    rest = ClothRest.from_cloth(cloth)
+    i_top = int(torch.argmax(body[:, 2]))
+    x = body[i_top].repeat(4, 1) + torch.tensor([0.0, 0.0, 0.004])
+    slip = torch.tensor([0.005, 0.0, 0.0])
+    step = BodyStep.from_vertices(body, body, torch.as_tensor(s.faces))
+    only = dict(stretch=0, bending=0, gravity=0, collision=0, repulsion=0, inertia=0)
+    _, default = total_loss(x, x, x + slip, step, rest, LossWeights(**only))
+    _, wide = total_loss(x, x, x + slip, step, rest, LossWeights(**only, collision_eps=4.5e-3))
+    c = 1e-4
+    expected = 0.5 * GRAVITY * cloth.vertex_mass.sum().item() * (math.sqrt(0.005**2 + c * c) - c)
+    assert default["friction"] == 0.0
+    assert math.isclose(wide["friction"], expected, rel_tol=1e-3)
+

@@ -198,6 +198,16 @@ def test_variant_loss_weights():
         assert cfg.weights().layer_friction_contact
     with pytest.raises(ValueError, match="layer_friction_normal"):
         TrainConfig(variant="full", layer_friction_normal="pressure").weights()
+    # the body penalty's clearance: the default 3 mm unless set, for every variant; nonsense values refused
+    from smln.losses import COLLISION_EPS
+
+    assert TrainConfig(variant="full").weights().collision_eps == COLLISION_EPS == 3e-3
+    for variant in ("full", "baseline"):
+        cfg, _ = parse_args(["--out", "x", "--variant", variant, "--collision-eps", "0.0045"])
+        assert cfg.weights().collision_eps == 4.5e-3
+    for bad in (-1e-3, 0.5):
+        with pytest.raises(ValueError, match="collision_eps"):
+            TrainConfig(variant="full", collision_eps=bad).weights()
 
 
 def test_learning_rate_schedule_halves_and_restarts():

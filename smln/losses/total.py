@@ -40,7 +40,8 @@ class LossWeights:
     inertia: float = 1.0
     collision: float = 1e4
     collision_eps: float = COLLISION_EPS
-    """Clearance of the body penalty, meters (:data:`smln.losses.collision.COLLISION_EPS`, 3 mm)."""
+    """Clearance of the body penalty, meters (:data:`smln.losses.collision.COLLISION_EPS`, 3 mm); also the body
+    friction's contact distance, since resting cloth sits about there (equal to ``FRICTION_RADIUS`` by default)."""
     layer_friction: float = 0.0
     """Weight of the friction between adjacent layers (:func:`~smln.losses.friction.layer_friction_energy`);
     0 = off (the paper's Eq. 22 and every run before session 11 hold the cloth against the body only)."""
@@ -140,8 +141,9 @@ def total_loss(
             terms["collision"] = collision_energy(x_next, body.next, body.normals_next, rest, idx=idx,
                                                    eps=w.collision_eps)
         if w.friction:
+            # contact = within the body penalty's clearance, where resting cloth sits (3 mm by default)
             terms["friction"] = friction_energy(
-                x_cur, x_next, body.cur, body.next, body.normals_next, rest, idx=idx
+                x_cur, x_next, body.cur, body.next, body.normals_next, rest, idx=idx, radius=w.collision_eps
             )
     if (w.repulsion or w.layer_friction) and rest.num_layers > 1:
         if pairs is None:
