@@ -73,12 +73,8 @@ def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
         "print('DDP-OK', dist.get_rank(), t.step)\n"
     )
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    import socket
-
-    with socket.socket() as sock:  # a free port (a fixed one can be taken or in TIME_WAIT)
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", f"--master_port={port}", str(script),
+    # --standalone: torchrun's own rendezvous on a free local port (no port picked here and raced for)
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script),
            "--out", str(tmp_path / "ddp"), "--max-steps", "3", "--outfits", _outfit(), *TINY]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env, cwd=Path(__file__).parents[1])
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-3000:]
