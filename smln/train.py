@@ -86,6 +86,7 @@ class TrainConfig:
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
     collision_eps: float | None = None  # None = COLLISION_EPS (3 mm); the body penalty's clearance, m (session 13)
+    repulsion_eps: float | None = None  # None = REPULSION_EPS (3 mm); the layers' clearance in the repulsion loss, m
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
     layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
     model: dict[str, Any] = field(default_factory=dict)
@@ -102,6 +103,10 @@ class TrainConfig:
             if not 0.0 <= self.collision_eps < 0.05:
                 raise ValueError(f"collision_eps must be in [0, 0.05) m, got {self.collision_eps!r}")
             w.collision_eps = self.collision_eps
+        if self.repulsion_eps is not None:
+            if not 0.0 <= self.repulsion_eps < 0.05:
+                raise ValueError(f"repulsion_eps must be in [0, 0.05) m, got {self.repulsion_eps!r}")
+            w.repulsion_eps = self.repulsion_eps
         if self.layer_friction_weight is not None:
             w.layer_friction = self.layer_friction_weight
         if self.layer_friction_normal not in LAYER_FRICTION_NORMALS:
@@ -613,6 +618,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--collision-eps", type=float,
                    help="clearance ε of that penalty, m (default smln.losses.collision.COLLISION_EPS, 3e-3): the "
                         "body term pushes cloth out to ε, H-Coll counts it inside the body at 0")
+    p.add_argument("--repulsion-eps", type=float,
+                   help="clearance ε between adjacent layers in the repulsion loss (and the layer friction's contact "
+                        "push), m (default smln.losses.repulsion.REPULSION_EPS, 3e-3; ignored by baseline)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -628,6 +636,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
                       ("collision_eps", "collision_eps"),
+                      ("repulsion_eps", "repulsion_eps"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),

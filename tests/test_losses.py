@@ -360,3 +360,15 @@ def test_body_friction_contact_follows_the_collision_clearance():
     assert default["friction"] == 0.0
     assert math.isclose(wide["friction"], expected, rel_tol=1e-3)
 
+
+
+def test_total_loss_uses_the_layer_clearance_of_the_weights():
+    """Two sheets 4 mm apart: no repulsion with the default 3 mm clearance, (6 mm - 4 mm)^3 per pair with 6 mm."""
+    rest, x = two_sheets(0.004)
+    far_body = torch.tensor([[0.0, 0.0, -1.0], [1.0, 0, -1], [0, 1.0, -1]])  # 1 m below: no body contact
+    body = BodyStep.from_vertices(far_body, far_body, torch.tensor([[0, 1, 2]]))
+    only = dict(stretch=0, bending=0, gravity=0, friction=0, collision=0, inertia=0, repulsion=1.0)
+    _, default = total_loss(x, x, x, body, rest, LossWeights(**only))
+    _, wide = total_loss(x, x, x, body, rest, LossWeights(**only, repulsion_eps=6e-3))
+    assert default["repulsion"] == 0.0
+    assert math.isclose(wide["repulsion"], 9 * 0.002**3, rel_tol=1e-3)

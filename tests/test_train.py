@@ -204,6 +204,14 @@ def test_variant_loss_weights():
     for bad in (-1e-3, 0.5):
         with pytest.raises(ValueError, match="collision_eps"):
             TrainConfig(variant="full", collision_eps=bad).weights()
+    # and the layers' clearance of the repulsion loss, likewise
+    from smln.losses import REPULSION_EPS
+
+    assert TrainConfig(variant="full").weights().repulsion_eps == REPULSION_EPS == 3e-3
+    cfg, _ = parse_args(["--out", "x", "--variant", "full", "--repulsion-eps", "0.0045"])
+    assert cfg.weights().repulsion_eps == 4.5e-3
+    with pytest.raises(ValueError, match="repulsion_eps"):
+        TrainConfig(variant="full", repulsion_eps=-1e-3).weights()
 
 
 def test_learning_rate_schedule_halves_and_restarts():

@@ -13,7 +13,7 @@ from smln.losses.collision import COLLISION_EPS, collision_energy
 from smln.losses.friction import friction_energy, layer_friction_energy
 from smln.losses.gravity import gravity_energy
 from smln.losses.inertia import inertia_energy
-from smln.losses.repulsion import layer_pairs, repulsion_energy_cm
+from smln.losses.repulsion import REPULSION_EPS, layer_pairs, repulsion_energy_cm
 from smln.losses.rest import ClothRest
 from smln.losses.stretch import stretch_energy
 
@@ -42,6 +42,9 @@ class LossWeights:
     collision_eps: float = COLLISION_EPS
     """Clearance of the body penalty, meters (:data:`smln.losses.collision.COLLISION_EPS`, 3 mm); also the body
     friction's contact distance, since resting cloth sits about there (equal to ``FRICTION_RADIUS`` by default)."""
+    repulsion_eps: float = REPULSION_EPS
+    """Clearance between adjacent layers of the repulsion loss (Eq. 25), meters
+    (:data:`smln.losses.repulsion.REPULSION_EPS`, 3 mm); also the clearance of the layer friction's contact push."""
     layer_friction: float = 0.0
     """Weight of the friction between adjacent layers (:func:`~smln.losses.friction.layer_friction_energy`);
     0 = off (the paper's Eq. 22 and every run before session 11 hold the cloth against the body only)."""
@@ -151,11 +154,11 @@ def total_loss(
         xt = coordinate_major(x_next)
         nt = vertex_normals_cm(xt, rest.faces)
         if w.repulsion:
-            terms["repulsion"] = repulsion_energy_cm(xt, nt, pairs, rest)
+            terms["repulsion"] = repulsion_energy_cm(xt, nt, pairs, rest, eps=w.repulsion_eps)
         if w.layer_friction:
             terms["layer_friction"] = layer_friction_energy(
                 x_cur, x_next, nt.t(), pairs, rest,
-                contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0)
+                contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0, eps=w.repulsion_eps)
     wd = asdict(w)
     loss = sum(wd[k] * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
