@@ -6,7 +6,7 @@ garment) and prints per layer: H-Coll %, the median and 90th percentile depth of
 share of them shallower than 2 mm, and the share of all the layer's vertices within 0-3 mm of the body (the band
 the body penalty's clearance holds resting cloth in). Shallow penetrations next to a full contact band mean the
 model's step errors carry resting cloth through the body; deep ones mean whole panels are caught inside it.
-Frames that fell back to skinning are left out.
+A checkpoint's frames that fell back to skinning are left out (the skinning row has every frame).
 
 Run: ``python bench/hcoll_depth.py --checkpoints shipped=checkpoints/full [other=PATH ...] [--outfit tshirt_jacket]
 [--motion 05_01_walk] [--frames 150] [--json OUT]`` (about 40 s per checkpoint and 150 frames on one core).
@@ -24,7 +24,7 @@ import torch
 from smln.body import DEFAULT_SHAPE
 from smln.checkpoint import load_checkpoint
 from smln.data_sampling import make_scene
-from smln.geometry import set_threads, signed_distance_along_normals, vertex_normals
+from smln.geometry import PointTree, build_tree, set_threads, signed_distance_along_normals, vertex_normals
 from smln.rollout import rollout
 
 SHALLOW = 2e-3
@@ -62,9 +62,14 @@ def penetration_profile(d: np.ndarray, layer_index: np.ndarray) -> dict[int, dic
     return out
 
 
-def body_distances(x: np.ndarray, body: torch.Tensor, body_faces: torch.Tensor) -> np.ndarray:
-    """(V,) signed distance of cloth positions ``x`` (V, 3) to the body (Vb, 3) along its vertex normals, m."""
-    _, d = signed_distance_along_normals(torch.as_tensor(x), body, vertex_normals(body, body_faces))
+def body_distances(x: np.ndarray, body: torch.Tensor, body_faces: torch.Tensor | None = None,
+                   normals: torch.Tensor | None = None, tree: PointTree | None = None) -> np.ndarray:
+    """(V,) signed distance of cloth positions ``x`` (V, 3) to the body (Vb, 3) along its vertex normals, m.
+
+    Pass the frame's ``normals`` (Vb, 3) and KD-``tree`` to reuse them across queries; else ``body_faces``."""
+    if normals is None:
+        normals = vertex_normals(body, body_faces)
+    _, d = signed_distance_along_normals(torch.as_tensor(x), body, normals, tree=tree)
     return d.numpy()
 
 
@@ -82,22 +87,24 @@ def main() -> None:
     scene = make_scene(a.outfit, DEFAULT_SHAPE, a.motion, edge_length=a.edge_length, max_frames=a.frames)
     layers = scene.cloth.layer_index.numpy()
     faces = scene.body.faces
+    # per frame once: the body's normals and KD-tree, shared by the skinned garment and every checkpoint
+    bodies = scene.body.vertices[: scene.num_frames]
+    normals = [vertex_normals(b, faces) for b in bodies]
+    trees = [build_tree(b) for b in bodies]
+    skinned_d = [body_distances(scene.skinned[t].numpy(), b, normals=normals[t], tree=trees[t])
+                 for t, b in enumerate(bodies)]
     report: dict[str, dict[int, dict[str, float]]] = {}
-    skinned_d = []
     for spec in a.checkpoints:
         label, _, path = spec.partition("=")
         model, _ = load_checkpoint(path)
-        model_d, skin_d = [], []
-        for fr in rollout(model, scene.cloth, scene.body, faces, num_frames=scene.num_frames, fallback=True):
-            if fr.fallback:
-                continue
-            body = scene.body.vertices[fr.index]
-            model_d.append(body_distances(fr.garment_positions, body, faces))
-            skin_d.append(body_distances(scene.skinned[fr.index].numpy(), body, faces))
+        model_d = [body_distances(fr.garment_positions, bodies[fr.index], normals=normals[fr.index],
+                                  tree=trees[fr.index])
+                   for fr in rollout(model, scene.cloth, scene.body, faces, num_frames=scene.num_frames,
+                                     fallback=True)
+                   if not fr.fallback]
         report[label] = penetration_profile(np.stack(model_d), layers)
-        skinned_d = skinned_d or skin_d
     report["skinning"] = penetration_profile(np.stack(skinned_d), layers)
-    print(f"{a.outfit} on {a.motion}, {scene.num_frames} frames (fallback frames left out)")
+    print(f"{a.outfit} on {a.motion}, {scene.num_frames} frames (a checkpoint's fallback frames left out)")
     for label, per_layer in report.items():
         for layer, r in per_layer.items():
             print(f"  {label:12s} layer {layer}: H-Coll {r['h_coll']:5.2f} %  depth p50 {r['depth_p50_mm']:5.1f} mm "

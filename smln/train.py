@@ -99,14 +99,12 @@ class TrainConfig:
             w.repulsion = self.repulsion_weight
         if self.collision_weight is not None:
             w.collision = self.collision_weight
-        if self.collision_eps is not None:
-            if not 0.0 <= self.collision_eps < 0.05:
-                raise ValueError(f"collision_eps must be in [0, 0.05) m, got {self.collision_eps!r}")
-            w.collision_eps = self.collision_eps
-        if self.repulsion_eps is not None:
-            if not 0.0 <= self.repulsion_eps < 0.05:
-                raise ValueError(f"repulsion_eps must be in [0, 0.05) m, got {self.repulsion_eps!r}")
-            w.repulsion_eps = self.repulsion_eps
+        for clearance in ("collision_eps", "repulsion_eps"):  # meters, the same name in LossWeights
+            value = getattr(self, clearance)
+            if value is not None:
+                if not 0.0 <= value < 0.05:
+                    raise ValueError(f"{clearance} must be in [0, 0.05) m, got {value!r}")
+                setattr(w, clearance, value)
         if self.layer_friction_weight is not None:
             w.layer_friction = self.layer_friction_weight
         if self.layer_friction_normal not in LAYER_FRICTION_NORMALS:
@@ -635,8 +633,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
-                      ("collision_eps", "collision_eps"),
-                      ("repulsion_eps", "repulsion_eps"),
+                      ("collision_eps", "collision_eps"), ("repulsion_eps", "repulsion_eps"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),

@@ -361,7 +361,6 @@ def test_body_friction_contact_follows_the_collision_clearance():
     assert math.isclose(wide["friction"], expected, rel_tol=1e-3)
 
 
-
 def test_total_loss_uses_the_layer_clearance_of_the_weights():
     """Two sheets 4 mm apart: no repulsion with the default 3 mm clearance, (6 mm - 4 mm)^3 per pair with 6 mm."""
     rest, x = two_sheets(0.004)
