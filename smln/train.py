@@ -85,6 +85,7 @@ class TrainConfig:
     compile: bool = False  # the processor through torch.compile (forward and backward; smln.model.compiled)
     repulsion_weight: float | None = None  # None = LossWeights.training() (1e4); sessions 1-2 trained with 1e3
     collision_weight: float | None = None  # None = LossWeights.training() (1e4); session 4 tried 5e4
+    stretch_weight: float | None = None  # None = 1 (the paper's λs); > 1 = a stiffer membrane (session 15)
     collision_eps: float | None = None  # None = COLLISION_EPS (3 mm); the body penalty's clearance, m (session 13)
     repulsion_eps: float | None = None  # None = REPULSION_EPS (3 mm); the layers' clearance in the repulsion loss, m
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
@@ -99,6 +100,10 @@ class TrainConfig:
             w.repulsion = self.repulsion_weight
         if self.collision_weight is not None:
             w.collision = self.collision_weight
+        if self.stretch_weight is not None:
+            if not 0.0 < self.stretch_weight <= 100.0:
+                raise ValueError(f"stretch_weight must be in (0, 100], got {self.stretch_weight!r}")
+            w.stretch = self.stretch_weight
         for clearance in ("collision_eps", "repulsion_eps"):  # meters, the same name in LossWeights
             value = getattr(self, clearance)
             if value is not None:
@@ -613,6 +618,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                         "loss's push, lagged; baseline has none and keeps the weight)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
+    p.add_argument("--stretch-weight", type=float,
+                   help="weight λs of the StVK stretch energy (default 1, the paper's): 2 = a membrane twice as stiff "
+                        "in the training loss (session 15's lever on mean edge strain)")
     p.add_argument("--collision-eps", type=float,
                    help="clearance ε of that penalty, m (default smln.losses.collision.COLLISION_EPS, 3e-3): the "
                         "body term pushes cloth out to ε, H-Coll counts it inside the body at 0")
@@ -633,6 +641,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
+                      ("stretch_weight", "stretch_weight"),
                       ("collision_eps", "collision_eps"), ("repulsion_eps", "repulsion_eps"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),

@@ -212,6 +212,14 @@ def test_variant_loss_weights():
     assert cfg.weights().repulsion_eps == 4.5e-3
     with pytest.raises(ValueError, match="repulsion_eps"):
         TrainConfig(variant="full", repulsion_eps=-1e-3).weights()
+    # the stretch weight: the paper's 1 unless set, for every variant (baseline too); nonsense refused
+    assert TrainConfig(variant="full").weights().stretch == 1.0
+    for variant in ("full", "no_repulsion_layer", "baseline"):
+        cfg, _ = parse_args(["--out", "x", "--variant", variant, "--stretch-weight", "2"])
+        assert cfg.weights().stretch == 2.0
+    for bad in (0.0, -1.0, 1e3):
+        with pytest.raises(ValueError, match="stretch_weight"):
+            TrainConfig(variant="full", stretch_weight=bad).weights()
 
 
 def test_learning_rate_schedule_halves_and_restarts():

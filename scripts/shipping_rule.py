@@ -1,0 +1,84 @@
+"""Apply the project's shipping rule to a candidate's test-clip evaluation (docs/RESULTS.md, sessions 12-15).
+
+    python scripts/shipping_rule.py --seen runs/eval21/A_seen_*.json --held runs/eval21/A_held_*.json \\
+        --sink-mm 44.1 [--shipped-seen docs/results/soup14_seen.json] [--shipped-held docs/results/soup14_unseen.json]
+
+A candidate (the three variants, each evaluated by ``smln eval --json``) replaces the shipped checkpoints only if
+
+1. no target figure of its full model is worse than the shipped full model's, on the seen and on the held-out
+   outfits: L-Coll %, H-Coll %, mean edge strain and the number of fallback frames (raw values, not rounded);
+2. the paper's Table 3 order holds on both splits: L-Coll(full) < L-Coll(no_repulsion_layer) < L-Coll(baseline);
+3. the open jacket of tshirt_jacket sinks no more than ``--max-sink-mm`` (122 mm, the shipped model) below its
+   skinned place at frame 50 of the walk (``bench/layer_sink.py``).
+
+Prints one line per check and exits 0 when all pass, 1 otherwise. The figures are frame-weighted means over the
+scenes, as ``smln eval`` prints them (:func:`smln.evaluate.aggregate`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from smln.evaluate import RunResult, aggregate
+
+TARGETS = (("l_coll", "L-Coll %"), ("h_coll", "H-Coll %"), ("strain_mean", "strain mean %"),
+           ("fallback_frames", "fallback frames"))
+ORDER = ("full", "no_repulsion_layer", "baseline")
+
+
+def load_rows(paths: list[Path]) -> dict[str, dict[str, float]]:
+    """Frame-weighted figures per method of all ``smln eval --json`` outputs in ``paths``."""
+    results = []
+    for path in paths:
+        try:
+            rows = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise SystemExit(f"cannot read evaluation {path}: {exc}") from exc
+        results += [RunResult(r["method"], r["outfit"], r["motion"], r["split"], r["metrics"]) for r in rows]
+    return aggregate(results)
+
+
+def check(candidate: dict[str, dict[str, float]], shipped: dict[str, dict[str, float]],
+          split: str) -> list[tuple[str, bool]]:
+    """(description, passed) for rule 1 and rule 2 on one split."""
+    out = []
+    for method in ORDER:
+        if method not in candidate:
+            out.append((f"{split}: {method} evaluated", False))
+    if "full" not in candidate or "full" not in shipped:
+        return out
+    for key, name in TARGETS:
+        new, old = candidate["full"][key], shipped["full"][key]
+        scale = 100.0 if key == "strain_mean" else 1.0  # a fraction in the JSON, printed in %
+        out.append((f"{split}: full {name} {new * scale:.4g} <= shipped {old * scale:.4g}", new <= old))
+    if all(m in candidate for m in ORDER):
+        values = [candidate[m]["l_coll"] for m in ORDER]
+        text = " < ".join(f"{m} {v:.3f}" for m, v in zip(ORDER, values, strict=True))
+        out.append((f"{split}: L-Coll order {text}", values[0] < values[1] < values[2]))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--seen", type=Path, nargs="+", required=True, help="candidate evaluations, seen outfits")
+    p.add_argument("--held", type=Path, nargs="+", required=True, help="candidate evaluations, held-out outfits")
+    p.add_argument("--shipped-seen", type=Path, default=Path("docs/results/soup14_seen.json"))
+    p.add_argument("--shipped-held", type=Path, default=Path("docs/results/soup14_unseen.json"))
+    p.add_argument("--sink-mm", type=float, required=True, help="candidate's jacket sink at frame 50, mm")
+    p.add_argument("--max-sink-mm", type=float, default=122.0)
+    a = p.parse_args(argv)
+    checks = check(load_rows(a.seen), load_rows([a.shipped_seen]), "seen")
+    checks += check(load_rows(a.held), load_rows([a.shipped_held]), "held-out")
+    checks.append((f"sink at frame 50 {a.sink_mm:.1f} mm <= {a.max_sink_mm:.0f} mm", a.sink_mm <= a.max_sink_mm))
+    for text, ok in checks:
+        print(f"{'pass' if ok else 'FAIL'}  {text}")
+    passed = all(ok for _, ok in checks)
+    print("ship" if passed else "do not ship")
+    return 0 if passed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
