@@ -123,7 +123,7 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
             f"{100 * ev['strain_mean']:.2f} | {100 * ev['strain_max']:.1f} | {ev['ms_model']:.0f} | "
             f"{int(ev['fallback_frames'])} |",
         ]
-    md += ["", "Load it with `smln.checkpoint.load_checkpoint(\"checkpoints/" + variant + "\")` (safetensors, no code "
+    md += ["", f"Load it with `smln.checkpoint.load_checkpoint(\"{out.as_posix()}\")` (safetensors, no code "
            "is executed)."]
     (out / "README.md").write_text("\n".join(md) + "\n")
     return out

@@ -1,0 +1,40 @@
+"""scripts/publish_checkpoints.py: a run's checkpoint copied bit-exact to the destination with its cards."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import torch
+
+from smln.checkpoint import load_checkpoint, save_checkpoint
+from smln.model import SMLN, SMLNConfig
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "publish_checkpoints.py"
+spec = importlib.util.spec_from_file_location("publish_checkpoints", SCRIPT)
+publish_checkpoints = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(publish_checkpoints)
+
+
+def test_publish_to_an_experimental_folder(tmp_path):
+    torch.manual_seed(0)
+    model = SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1))))
+    run = tmp_path / "runs" / "x_full"
+    save_checkpoint(run / "best", model, card={"variant": "full", "training": {"steps": 7, "hardware": "test"}})
+    results = [{"method": "full", "outfit": o, "motion": "clip", "split": "train",
+                "metrics": {"num_frames": n, "l_coll": lc, "h_coll": 1.0, "bend": 0.1, "collision_loss": 0.0,
+                            "strain_mean": 0.05, "ms_model": 30.0, "strain_max_max": 2.0, "fallback_frames": fb}}
+               for o, n, lc, fb in (("a", 100, 1.0, 2), ("b", 300, 3.0, 1))]
+    dest = tmp_path / "checkpoints" / "experimental" / "set"
+    out = publish_checkpoints.publish(run, "full", "best", dest, results)
+    assert out == dest / "full"
+    loaded, card = load_checkpoint(out)
+    for key, value in model.state_dict().items():
+        assert torch.equal(loaded.state_dict()[key], value), key
+    ev = json.loads((out / "card.json").read_text())["evaluation"]
+    assert ev["l_coll"] == 2.5  # frame-weighted: (100 * 1 + 300 * 3) / 400
+    assert ev["fallback_frames"] == 3 and ev["frames"] == 400
+    readme = (out / "README.md").read_text()
+    assert f'load_checkpoint("{out.as_posix()}")' in readme  # the folder it was published to, not checkpoints/full
+    assert card["training"]["steps"] == 7
