@@ -134,11 +134,11 @@ def main() -> None:
     p.add_argument("--runs", default="runs")
     p.add_argument("--which", default="best", choices=["best", "last"])
     p.add_argument("--dest", default="checkpoints")
-    p.add_argument("--eval-json")
+    p.add_argument("--eval-json", nargs="+", help="smln eval --json outputs (one or several, e.g. one per variant)")
     p.add_argument("--variants", nargs="+", default=list(DESCRIPTIONS))
     p.add_argument("--prefix", default="", help="run directories are RUNS/<prefix><variant> (e.g. ft_)")
     a = p.parse_args()
-    results = json.loads(Path(a.eval_json).read_text()) if a.eval_json else None
+    results = [row for f in a.eval_json for row in json.loads(Path(f).read_text())] if a.eval_json else None
     for v in a.variants:
         print(publish(Path(a.runs) / f"{a.prefix}{v}", v, a.which, Path(a.dest), results))
 

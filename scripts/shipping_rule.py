@@ -1,7 +1,7 @@
 """Apply the project's shipping rule to a candidate's test-clip evaluation (docs/RESULTS.md, sessions 12-15).
 
     python scripts/shipping_rule.py --seen OUTDIR/seen_*.json --held OUTDIR/held_*.json --sink-mm 44.1 \\
-        [--shipped-seen docs/results/r22_seen.json] [--shipped-held docs/results/r22_held.json] [--max-sink-mm 34.5]
+        [--shipped-seen docs/results/r22_seen_*.json] [--shipped-held docs/results/r22_held_*.json] [--max-sink-mm 34.5]
 
 A candidate (the three variants, each evaluated by ``smln eval --json``) replaces the shipped checkpoints only if
 
@@ -69,14 +69,15 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seen", type=Path, nargs="+", required=True, help="candidate evaluations, seen outfits")
     p.add_argument("--held", type=Path, nargs="+", required=True, help="candidate evaluations, held-out outfits")
-    p.add_argument("--shipped-seen", type=Path, default=Path("docs/results/r22_seen.json"))
-    p.add_argument("--shipped-held", type=Path, default=Path("docs/results/r22_held.json"))
+    shipped = [f"docs/results/r22_{{}}_{v}.json" for v in ORDER]  # the shipped model's evaluations, per variant
+    p.add_argument("--shipped-seen", type=Path, nargs="+", default=[Path(f.format("seen")) for f in shipped])
+    p.add_argument("--shipped-held", type=Path, nargs="+", default=[Path(f.format("held")) for f in shipped])
     p.add_argument("--sink-mm", type=float, required=True, help="candidate's jacket sink at frame 50, mm")
     p.add_argument("--max-sink-mm", type=float, default=34.5)
     a = p.parse_args(argv)
-    checks = check(load_rows(a.seen), load_rows([a.shipped_seen]), "seen")
-    checks += check(load_rows(a.held), load_rows([a.shipped_held]), "held-out")
-    checks.append((f"sink at frame 50 {a.sink_mm:.1f} mm <= {a.max_sink_mm:.0f} mm", a.sink_mm <= a.max_sink_mm))
+    checks = check(load_rows(a.seen), load_rows(a.shipped_seen), "seen")
+    checks += check(load_rows(a.held), load_rows(a.shipped_held), "held-out")
+    checks.append((f"sink at frame 50 {a.sink_mm:.1f} mm <= {a.max_sink_mm:.1f} mm", a.sink_mm <= a.max_sink_mm))
     for text, ok in checks:
         print(f"{'pass' if ok else 'FAIL'}  {text}")
     passed = all(ok for _, ok in checks)
