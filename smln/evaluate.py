@@ -287,6 +287,30 @@ def rollout_guards(a: argparse.Namespace) -> dict[str, float | str]:
             "skin_guard": a.skin_guard}
 
 
+def load_results(paths: list[str | Path]) -> list[RunResult]:
+    """The runs of one or more ``smln eval --json`` files, in order.
+
+    Raises:
+        ValueError: a file that is not such a list, or one method × outfit × clip present twice (two files
+            of the same checkpoint, or a merged file given with its parts), which would count its frames twice.
+    """
+    results: list[RunResult] = []
+    seen: dict[tuple[str, str, str], str] = {}
+    for path in paths:
+        try:
+            rows = json.loads(Path(path).read_text())
+            runs = [RunResult(r["method"], r["outfit"], r["motion"], r["split"], r["metrics"]) for r in rows]
+        except (OSError, json.JSONDecodeError, TypeError, KeyError) as e:
+            raise ValueError(f"{path}: not an `smln eval --json` output ({type(e).__name__}: {e})") from e
+        for r in runs:
+            key = (r.method, r.outfit, r.motion)
+            if key in seen:
+                raise ValueError(f"{path}: {r.method} on {r.outfit} × {r.motion} is also in {seen[key]}")
+            seen[key] = str(path)
+        results.extend(runs)
+    return results
+
+
 def cli_main(args: argparse.Namespace) -> None:
     main(args.argv)
 
@@ -310,11 +334,12 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", help="write all results as JSON")
     p.add_argument("--markdown", help="write the tables as markdown")
-    p.add_argument("--from-json", help="re-print the tables of an earlier --json output without running anything")
+    p.add_argument("--from-json", nargs="+", metavar="JSON",
+                   help="re-print the tables of earlier --json outputs (several are merged, e.g. one per checkpoint "
+                        "and a skinning-only run) without running anything")
     a = p.parse_args(argv)
     if a.from_json:
-        rows = json.loads(Path(a.from_json).read_text())
-        results = [RunResult(r["method"], r["outfit"], r["motion"], r["split"], r["metrics"]) for r in rows]
+        results = load_results(a.from_json)
         report = make_report(results, sorted({r.outfit for r in results}), sorted({r.motion for r in results}),
                              a.shape, a.frames)
         print(report)

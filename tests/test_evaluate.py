@@ -99,3 +99,38 @@ def test_two_checkpoints_of_one_variant_get_a_row_each(tmp_path):
     assert sorted(r.method for r in results) == ["full", f"full ({other})"]
     with pytest.raises(ValueError, match="more than once"):
         main(["--checkpoint", str(CHECKPOINT), "--checkpoint", str(CHECKPOINT), *args])
+
+
+def _run_json(method: str, outfit: str, motion: str, frames: float, l_coll: float) -> dict:
+    """One run of an ``smln eval --json`` file with round metric values."""
+    metrics = {"num_frames": frames, "bend": 0.05, "collision_loss": 6e-6, "l_coll": l_coll, "h_coll": 1.0,
+               "strain_mean": 0.05, "strain_max": 0.5, "strain_max_max": 0.5, "offset_rms": 0.07, "ms_model": 30.0,
+               "fallback": 0.0, "fallback_frames": 0.0, "exploded": 0.0}
+    return {"method": method, "outfit": outfit, "motion": motion, "split": "train", "metrics": metrics}
+
+
+def test_from_json_merges_files_frame_weighted_and_refuses_duplicates(tmp_path):
+    """``--from-json A B``: the runs of both files make one table; a method's row is the frame-weighted mean
+    of its runs (100 frames at 1 % and 300 at 3 % read 2.50 %); a run present in two files is refused."""
+    import json
+
+    from smln.evaluate import main
+
+    full = tmp_path / "full.json"
+    full.write_text(json.dumps([_run_json("full", "tshirt_jacket", "05_01_walk", 100, 1.0),
+                                _run_json("full", "tshirt_jacket", "09_06_run", 300, 3.0)]))
+    skin = tmp_path / "skinning.json"
+    skin.write_text(json.dumps([_run_json("skinning", "tshirt_jacket", "05_01_walk", 100, 4.0)]))
+    out = tmp_path / "t.md"
+    results = main(["--from-json", str(full), str(skin), "--markdown", str(out)])
+    assert [r.method for r in results] == ["full", "full", "skinning"]
+    rows = {line.split("|")[1].strip(): line.split("|") for line in out.read_text().splitlines()
+            if line.startswith("| full ") or line.startswith("| skinning ")}
+    assert rows["full"][4].strip() == "2.50" and rows["skinning"][4].strip() == "4.00"  # L-Coll column
+    assert rows["full"][-2].strip() == "400"  # frames
+    with pytest.raises(ValueError, match="also in"):
+        main(["--from-json", str(full), str(full)])
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"not": "a list of runs"}')
+    with pytest.raises(ValueError, match="not an `smln eval --json` output"):
+        main(["--from-json", str(bad)])
