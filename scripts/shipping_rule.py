@@ -22,11 +22,10 @@ scenes, as ``smln eval`` prints them (:func:`smln.evaluate.aggregate`).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from smln.evaluate import RunResult, aggregate
+from smln.evaluate import aggregate, load_results
 
 TARGETS = (("l_coll", "L-Coll %"), ("h_coll", "H-Coll %"), ("strain_mean", "strain mean %"),
            ("fallback_frames", "fallback frames"))
@@ -35,14 +34,10 @@ ORDER = ("full", "no_repulsion_layer", "baseline")
 
 def load_rows(paths: list[Path]) -> dict[str, dict[str, float]]:
     """Frame-weighted figures per method of all ``smln eval --json`` outputs in ``paths``."""
-    results = []
-    for path in paths:
-        try:
-            rows = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise SystemExit(f"cannot read evaluation {path}: {exc}") from exc
-        results += [RunResult(r["method"], r["outfit"], r["motion"], r["split"], r["metrics"]) for r in rows]
-    return aggregate(results)
+    try:
+        return aggregate(load_results(paths))
+    except ValueError as exc:  # unreadable, not eval output, or one run in two files
+        raise SystemExit(f"cannot read evaluations: {exc}") from exc
 
 
 def check(candidate: dict[str, dict[str, float]], shipped: dict[str, dict[str, float]],
