@@ -8,6 +8,7 @@ import torch
 import trimesh
 
 from smln.motion import MotionError, list_clips, load_bvh, load_motion, manifest, pose_sequence, retarget
+from smln.motion.bvh import CMU_UNIT, detect_unit, zero_pose_extent
 from smln.motion.library import clip_path
 from smln.motion.resample import sample_times, slerp_rotations
 from smln.motion.retarget import BVH_TO_BODY, posed_bone_ends
@@ -117,6 +118,86 @@ def test_unknown_skeleton_is_refused(tmp_path, body):
     path = tmp_path / "other_rig.bvh"
     path.write_text(text)
     with pytest.raises(MotionError, match="missing joints"):
+        retarget(load_bvh(path), body)
+
+
+def _write_bvh(path, clip, names, turn, unit):
+    """Write ``clip`` as a BVH file of another source: joints renamed by ``names``, axes turned by ``turn`` (file =
+    turn @ CMU), lengths in ``unit`` m per file unit, rotations as ZXY Euler channels (an independent writer)."""
+    from scipy.spatial.transform import Rotation
+
+    offsets, ends = clip.offsets @ turn.T / unit, clip.end_offsets @ turn.T / unit
+    local = np.einsum("ik,fjkl,ml->fjim", turn, clip.local_rotations, turn)
+    root = clip.root_positions @ turn.T / unit
+    children = {j: [c for c, p in enumerate(clip.parents) if p == j] for j in range(len(names))}
+    lines = ["HIERARCHY"]
+
+    def joint(j, depth):
+        pad = "  " * depth
+        kind = "ROOT" if clip.parents[j] < 0 else "JOINT"
+        channels = "6 Xposition Yposition Zposition" if kind == "ROOT" else "3"
+        lines.extend([f"{pad}{kind} {names[j]}", pad + "{", f"{pad}  OFFSET {' '.join(f'{v:.6f}' for v in offsets[j])}",
+                      f"{pad}  CHANNELS {channels} Zrotation Xrotation Yrotation"])
+        for c in children[j]:
+            joint(c, depth + 1)
+        if not children[j]:
+            lines.extend([f"{pad}  End Site", pad + "  {", f"{pad}    OFFSET {' '.join(f'{v:.6f}' for v in ends[j])}",
+                          pad + "  }"])
+        lines.append(pad + "}")
+
+    joint(0, 0)
+    euler = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True).reshape(len(root), -1)
+    lines += ["MOTION", f"Frames: {len(root)}", f"Frame Time: {1 / clip.fps:.8f}"]
+    lines += [" ".join(f"{v:.6f}" for v in np.concatenate([r, e])) for r, e in zip(root, euler, strict=True)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_mixamo_style_z_up_centimetre_file_retargets_as_the_cmu_clip(tmp_path, body):
+    """The same motion written as another source would (``mixamorig:`` names, a Spine/Spine1/Spine2 spine without
+    LowerBack, LeftToe, Z up facing +X, centimetres) reads as the CMU original: same unit, same frames, and the
+    retargeted body orientations and root path agree with the original's."""
+    clip = load_bvh(clip_path("02_01_walk"))
+    rename = {"LowerBack": "Spine", "Spine": "Spine1", "Spine1": "Spine2", "LeftToeBase": "LeftToe",
+              "RightToeBase": "RightToe"}
+    names = ["mixamorig:" + rename.get(n, n) for n in clip.joint_names]
+    turn = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # CMU left X -> Y, up Y -> Z, facing Z -> X
+    path = tmp_path / "mixamo_walk.bvh"
+    _write_bvh(path, clip, names, turn, unit=0.01)
+    other = load_bvh(path)
+    assert other.num_frames == clip.num_frames
+    np.testing.assert_allclose(other.offsets, clip.offsets @ turn.T, atol=1e-7)  # read in metres again
+    reference, converted = retarget(clip, body), retarget(other, body)
+    assert converted.num_frames == reference.num_frames
+    np.testing.assert_allclose(converted.world_orientations, reference.world_orientations, atol=1e-4)
+    np.testing.assert_allclose(converted.root_positions, reference.root_positions, atol=1e-4)
+
+
+@pytest.mark.parametrize("unit, expected", [(CMU_UNIT, CMU_UNIT), (0.01, 0.01), (1.0, 1.0), (0.0254, 0.0254),
+                                            (0.001, 0.001)])
+def test_the_unit_is_read_from_the_skeleton_size(unit, expected):
+    """A 1.5 m tall zero pose written in each unit is read back in that unit (the CMU unit wins where plausible)."""
+    assert detect_unit(1.5 / unit) == expected
+    parents, offsets = [-1, 0, 1], np.array([[0, 0, 0], [0, -0.9, 0], [0, 1.5, 0]]) / unit
+    assert zero_pose_extent(offsets, parents) == pytest.approx(1.5 / unit)
+
+
+@pytest.mark.parametrize("bones, direction, message", [
+    (("Spine", "Spine1", "Neck1", "Head"), (1.0, 0.0, 0.0), "up and left axes"),  # the spine points to the left
+    (("LeftLeg", "LeftFoot"), (0.0, 1.0, 0.0), "left leg does not point down"),  # a LAFAN1-like rest, legs up
+])
+def test_a_skeleton_whose_zero_pose_is_not_standing_is_refused(tmp_path, body, bones, direction, message):
+    """A zero pose with the head beside the hips gives no up axis, one with the legs pointing up no readable bone
+    twist: both are refused with a clear error instead of retargeted into a wrong motion."""
+    clip = load_bvh(clip_path("02_01_walk"))
+    offsets = clip.offsets.copy()
+    for name in bones:
+        j = clip.joint_names.index(name)
+        offsets[j] = np.linalg.norm(offsets[j]) * np.asarray(direction)
+    bent = type(clip)(clip.name, clip.joint_names, clip.parents, offsets, clip.end_offsets, clip.local_rotations,
+                      clip.root_positions, clip.fps)
+    path = tmp_path / "bent.bvh"
+    _write_bvh(path, bent, clip.joint_names, np.eye(3), unit=CMU_UNIT)
+    with pytest.raises(MotionError, match=message):
         retarget(load_bvh(path), body)
 
 

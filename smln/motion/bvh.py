@@ -14,6 +14,15 @@ import numpy as np
 CMU_UNIT = 0.056444
 """Meters per CMU BVH unit ((1/0.45) inch, see smln/data/motions/README.md)."""
 
+UNIT_CANDIDATES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
+"""Meters per file unit of other BVH sources (Mixamo writes cm, other exporters m, mm or inches)."""
+
+PLAUSIBLE_EXTENT_M = (0.8, 2.6)
+"""A human skeleton's zero pose spans this much, m (its largest bounding-box side: height or T-pose arm span)."""
+
+TYPICAL_EXTENT_M = 1.6
+"""The extent a unit is chosen for when the CMU unit gives an implausible skeleton, m."""
+
 MAX_BVH_BYTES = 64 * 1024 * 1024
 MAX_BVH_FRAMES = 120 * 60 * 10
 """Limits for user files: 64 MB and ten minutes at 120 fps."""
@@ -104,12 +113,36 @@ def _trim_start(rotations: np.ndarray, root: np.ndarray, fps: float) -> tuple[np
     return rotations[first:], root[first:]
 
 
-def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH_FRAMES) -> BvhClip:
+def zero_pose_extent(offsets: np.ndarray, parents: list[int]) -> float:
+    """Largest side of the bounding box of the joints in the zero pose (all rotations identity), in the offsets'
+    unit. ``offsets``: (J, 3) joint offsets from the parent; ``parents``: J parent indices, parents first."""
+    pos = np.zeros_like(offsets)
+    for j, p in enumerate(parents):  # J is a few dozen joints, once per file
+        pos[j] = offsets[j] if p < 0 else pos[p] + offsets[j]
+    return float((pos.max(axis=0) - pos.min(axis=0)).max())
+
+
+def detect_unit(extent: float) -> float:
+    """Meters per file unit for a skeleton whose zero pose spans ``extent`` file units.
+
+    The CMU unit whenever it gives a human-sized skeleton (:data:`PLAUSIBLE_EXTENT_M`), so every CMU clip reads
+    exactly as before; otherwise the unit of :data:`UNIT_CANDIDATES` whose skeleton is nearest (in ratio) to
+    :data:`TYPICAL_EXTENT_M`. The retargeting itself is scale-free (the root follows the leg-length ratio); the
+    unit matters for the start-up glitch test (m/s) and for the clip's reported positions.
+    """
+    low, high = PLAUSIBLE_EXTENT_M
+    if extent <= 0 or low <= extent * CMU_UNIT <= high:
+        return CMU_UNIT
+    return min(UNIT_CANDIDATES.values(), key=lambda u: abs(np.log(extent * u / TYPICAL_EXTENT_M)))
+
+
+def load_bvh(path: str | Path, unit: float | None = None, max_frames: int = MAX_BVH_FRAMES) -> BvhClip:
     """Parse and validate a BVH file.
 
     Args:
         path: the .bvh file.
-        unit: meters per file unit (CMU: 0.056444).
+        unit: meters per file unit; None (default) detects it from the skeleton's size (:func:`detect_unit`:
+            the CMU unit 0.056444 for CMU files, cm for Mixamo, ...).
         max_frames: refuse longer files.
 
     Raises:
@@ -145,12 +178,17 @@ def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH
     by_name = {n.name: n for n in bvh.nodes}
     nodes = [by_name[n] for n in names]
     parents = [names.index(n.parent.name) if n.parent is not None else -1 for n in nodes]
-    offsets = np.array([n.offset for n in nodes], dtype=np.float64) * unit
+    offsets = np.array([n.offset for n in nodes], dtype=np.float64)
     end_offsets = np.zeros_like(offsets)
     for j, node in enumerate(nodes):
-        ends = [c for c in node.children if c.is_end_site]
+        ends = [c for c in node.children if c.is_end_site()]
         if ends:
-            end_offsets[j] = np.asarray(ends[0].offset, dtype=np.float64) * unit
+            end_offsets[j] = np.asarray(ends[0].offset, dtype=np.float64)
+    if not (np.isfinite(offsets).all() and np.isfinite(end_offsets).all()):
+        raise MotionError(f"{path.name}: the skeleton has NaN or infinite joint offsets")
+    if unit is None:
+        unit = detect_unit(zero_pose_extent(offsets, parents))
+    offsets, end_offsets = offsets * unit, end_offsets * unit
 
     if local.shape[0] == 0:
         raise MotionError(f"{path.name}: the file has no motion frames")
@@ -158,8 +196,6 @@ def load_bvh(path: str | Path, unit: float = CMU_UNIT, max_frames: int = MAX_BVH
         raise MotionError(f"{path.name}: truncated: {local.shape[0]} frames of the {declared} declared")
     if not (np.isfinite(local).all() and np.isfinite(root).all()):
         raise MotionError(f"{path.name}: the motion contains NaN or infinite values")
-    if not (np.isfinite(offsets).all() and np.isfinite(end_offsets).all()):
-        raise MotionError(f"{path.name}: the skeleton has NaN or infinite joint offsets")
     fps = float(bvh.fps)
     if not np.isfinite(fps) or fps <= 0 or fps > 1000:
         raise MotionError(f"{path.name}: implausible frame rate {fps}")
