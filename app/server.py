@@ -394,7 +394,9 @@ class ViewerApp:
             return
         self._refresh_options()
         self.set_setting(outfit=key)
-        self.notify("Garment loaded", f"{f.name} is now shown", client=event.client, error=False)
+        note = self.uploads.note(key)
+        self.notify("Garment loaded", f"{f.name} is now shown" + (f" ({note})" if note else ""), client=event.client,
+                    error=False)
 
     @_guarded
     def _on_upload_rollout(self, event: Any) -> None:

@@ -46,6 +46,7 @@ class UploadStore:
         self._clips: dict[str, tuple[str, Path]] = {}
         self._garments: dict[str, tuple[str, Path]] = {}
         self._cloths: dict[tuple[str, str], Cloth] = {}
+        self._notes: dict[str, str] = {}
         self._lock = threading.Lock()
         self._count = 0
 
@@ -93,22 +94,24 @@ class UploadStore:
         key, path = self._write("obj", name, content, MAX_OBJ_BYTES, ".obj")
         label = Path(name).stem
         try:
-            cloth = self._make_cloth(label, path, shape)
+            cloth, note = self._make_cloth(label, path, shape)
         except Exception as exc:
             path.unlink(missing_ok=True)
             raise UploadError(_one_line(exc, name)) from exc
         with self._lock:
             self._garments[key] = (label, path)
+            self._notes[key] = note
             self._cloths[(key, shape)] = cloth
         return key
 
     @staticmethod
-    def _make_cloth(label: str, path: Path, shape: str) -> Cloth:
+    def _make_cloth(label: str, path: Path, shape: str) -> tuple[Cloth, str]:
+        """The garment as a one-layer cloth on ``shape``, and how its file was read (unit, up axis; "" as is)."""
         from smln.garments.garment import Garment
         from smln.garments.outfit import Outfit
 
         garment = Garment.from_obj(path, load_body(shape))
-        return Outfit(label, [garment], shape).to_cloth()
+        return Outfit(label, [garment], shape).to_cloth(), garment.note
 
     def clips(self) -> list[tuple[str, str]]:
         """(key, label) of the accepted clips."""
@@ -123,6 +126,10 @@ class UploadStore:
             raise UploadError(f"unknown uploaded clip {key!r}")
         return self._clips[key][1]
 
+    def note(self, key: str) -> str:
+        """How the uploaded garment's file was read (``"read in cm, turned from Y up to Z up"``), "" if as is."""
+        return self._notes.get(key, "")
+
     def cloth(self, key: str, shape: str) -> Cloth:
         """The uploaded garment as a one-layer cloth on ``shape`` (fitted once per shape)."""
         if key not in self._garments:
@@ -131,7 +138,7 @@ class UploadStore:
             cached = self._cloths.get((key, shape))
         if cached is None:
             label, path = self._garments[key]
-            cached = self._make_cloth(label, path, shape)
+            cached, _ = self._make_cloth(label, path, shape)
             with self._lock:
                 self._cloths[(key, shape)] = cached
         return cached

@@ -383,14 +383,14 @@ def test_upload_obj_bad_files(store: UploadStore, garment_obj: bytes) -> None:
     import trimesh
 
     mesh = trimesh.load(trimesh.util.wrap_as_stream(garment_obj), file_type="obj", process=False, force="mesh")
-    cm = trimesh.Trimesh(mesh.vertices * 100, mesh.faces, process=False).export(file_type="obj").encode()
+    floating = trimesh.Trimesh(mesh.vertices + [0.0, 0.0, 1.0], mesh.faces, process=False).export(file_type="obj")
     nan = garment_obj.replace(b"\nv ", b"\nv nan ", 1)
     inf = garment_obj.replace(b"\nv ", b"\nv inf ", 1)
     cases = {
         "empty.obj": (b"", "empty"),
         "junk.obj": (os.urandom(4096), None),
         "trunc.obj": (garment_obj[: len(garment_obj) // 3], None),
-        "cm.obj": (cm, "centimetres"),
+        "floating.obj": (floating.encode(), "on the body in its T-pose"),
         "nan.obj": (nan, None),
         "inf.obj": (inf, None),
         "nonmanifold.obj": (b"v 0 0 0\nv 0.3 0 0\nv 0 0.3 0\nv 0 0 0.3\nv 0.3 0.3 0.3\nf 1 2 3\nf 1 2 4\nf 1 2 5\n",
@@ -403,6 +403,22 @@ def test_upload_obj_bad_files(store: UploadStore, garment_obj: bytes) -> None:
     for name, (data, match) in cases.items():
         msg = _refused(store, "obj", name, data, match)
         assert name in msg
+
+
+def test_upload_obj_in_centimetres_and_y_up_is_read_and_said(store: UploadStore, garment_obj: bytes) -> None:
+    """A garment exported as Blender and Maya write OBJ (Y up, centimetres) is accepted, fitted where the metre
+    Z-up file is, and the store says how it was read (the viewer shows it in its notification)."""
+    import trimesh
+
+    from smln.garments.obj_import import UP_AXES
+
+    mesh = trimesh.load(trimesh.util.wrap_as_stream(garment_obj), file_type="obj", process=False, force="mesh")
+    y_up_cm = trimesh.Trimesh(np.asarray(mesh.vertices) @ UP_AXES["y"] * 100, mesh.faces, process=False)
+    key = store.add_obj("shorts_cm.obj", y_up_cm.export(file_type="obj").encode(), SHAPE)
+    plain = store.add_obj("shorts.obj", garment_obj, SHAPE)
+    assert store.note(key) == "read in cm, turned from Y up to Z up" and store.note(plain) == ""
+    np.testing.assert_allclose(store.cloth(key, SHAPE).rest_vertices, store.cloth(plain, SHAPE).rest_vertices,
+                               atol=1e-5)
 
 
 def test_upload_keeps_accepted_state(store: UploadStore, garment_obj: bytes) -> None:

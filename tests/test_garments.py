@@ -137,11 +137,47 @@ def test_user_obj_roundtrip_and_layering(tmp_path) -> None:
     o = base.with_layer(user, index=1)
     assert [x.name for x in o.layers] == ["tshirt", "tee", "jacket"]
     assert all((gap > 0).all() for gap in o.layer_gaps()) and all((gap > 0).all() for gap in o.body_gaps())
-    # centimetres are caught with a hint
+    # a wrong explicit scale is caught with a hint
     trimesh.Trimesh(skirt.vertices * 100, skirt.faces, process=False).export(tmp_path / "cm.obj")
     with pytest.raises(GarmentError, match="centimetres"):
-        Garment.from_obj(tmp_path / "cm.obj")
+        Garment.from_obj(tmp_path / "cm.obj", scale=1.0)
     assert Garment.from_obj(tmp_path / "cm.obj", scale=0.01).num_vertices == skirt.num_vertices
+
+
+@pytest.mark.parametrize("unit, turn, note", [
+    (0.01, "y", "read in cm, turned from Y up to Z up"),  # Blender's OBJ default (Y up, -Z forward) in cm
+    (0.001, "z", "read in mm"),
+    (1.0, "y", "turned from Y up to Z up"),
+    (1.0, "z", ""),
+])
+def test_user_obj_unit_and_up_axis_are_read_from_the_fit_to_the_body(tmp_path, unit, turn, note) -> None:
+    """A shipped garment written in another unit and frame loads back onto the body where it was, and says so."""
+    import trimesh
+
+    from smln.garments.obj_import import UP_AXES
+
+    for kind in ("tshirt", "skirt"):  # a tight and a loose garment
+        ref = build_garment(kind, edge_length=TRAINING_EDGE_LENGTH)
+        file_vertices = ref.vertices.astype(np.float64) @ UP_AXES[turn] / unit  # body -> file frame (inverse turn)
+        path = tmp_path / f"{kind}.obj"
+        trimesh.Trimesh(file_vertices, ref.faces, process=False).export(path)
+        g = Garment.from_obj(path, load_body())
+        np.testing.assert_allclose(g.vertices, ref.vertices, atol=1e-5)
+        assert g.note == note and g.pinned.sum() == ref.pinned.sum()
+
+
+def test_user_obj_off_the_body_is_refused(tmp_path) -> None:
+    """A garment 1 m above the body (in every unit and axis tried) gets a clear error, not a floating cloth."""
+    import trimesh
+
+    ref = build_garment("tshirt", edge_length=TRAINING_EDGE_LENGTH)
+    path = _write(tmp_path / "floating.obj", "")
+    trimesh.Trimesh(ref.vertices + np.array([0.0, 0.0, 1.0]), ref.faces, process=False).export(path)
+    with pytest.raises(GarmentError, match="T-pose") as err:
+        Garment.from_obj(path)
+    assert "\n" not in str(err.value)
+    with pytest.raises(GarmentError, match="up axis"):
+        Garment.from_obj(path, up_axis="x")
 
 
 @pytest.mark.parametrize(

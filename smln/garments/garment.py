@@ -41,6 +41,8 @@ class Garment:
         material: fabric constants.
         shape: body shape preset the garment was built on.
         edge_length: target edge length, m.
+        note: how a user's mesh was read when it was not in the body's frame and meters (``"read in cm, turned
+            from Y up to Z up"``), else empty.
     """
 
     name: str
@@ -54,6 +56,7 @@ class Garment:
     material: Material = field(default_factory=Material)
     shape: str = ""
     edge_length: float = 0.0
+    note: str = ""
 
     @property
     def num_vertices(self) -> int:

@@ -24,6 +24,28 @@ MAX_EXTENT = 3.0
 MIN_EXTENT = 0.05
 """Smallest plausible garment extent, m."""
 
+FILE_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
+"""Meters per file unit tried when no scale is given (the ones whose garment size is plausible)."""
+
+UP_AXES = {"z": np.eye(3), "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])}
+"""File frame -> body frame (Z up, facing -Y): ``z`` as it is; ``y`` the Y-up, facing +Z frame of OBJ exporters
+(Blender's default), (x, y, z) -> (x, -z, y)."""
+
+MAX_BODY_DISTANCE = 0.15
+"""Largest median distance of a garment's vertices from the T-pose body surface, m (shipped garments: 1-7 cm)."""
+
+BELOW_FLOOR = (0.02, 0.05)
+"""A reading with more than 5 % of its vertices 2 cm or more below the floor (z = 0, where the body stands) is not
+on the body: a Y-up garment read as Z-up lies on the floor, half of it below."""
+
+INSIDE_BODY = (0.01, 0.05)
+"""A reading with more than 5 % of its vertices 1 cm or more inside the body (behind the nearest body vertex's
+normal plane) is not on it: an inch garment read as cm is shrunk into the torso."""
+
+SWITCH_FACTOR = 0.5
+"""Another unit or up axis replaces the file's own (meters, Z up) only when its median distance from the body is
+below this fraction of the file's own."""
+
 
 def _count_obj_vertices(data: bytes) -> int:
     return data.count(b"\nv ") + int(data.startswith(b"v "))
@@ -92,6 +114,81 @@ def check_scale(v: np.ndarray, path: str | Path = "garment") -> None:
         raise GarmentError(f"{path}: garment is only {ext:.3g} m across; pass a scale factor (SMLN uses meters)")
 
 
+def _centred(v: np.ndarray, centre_xy: np.ndarray) -> np.ndarray:
+    """``v`` moved horizontally so that its bounding box is centred on ``centre_xy`` (when more than 2 cm off)."""
+    off = centre_xy - 0.5 * (v[:, :2].min(axis=0) + v[:, :2].max(axis=0))
+    if np.linalg.norm(off) <= 0.02:
+        return v
+    out = v.copy()
+    out[:, :2] += off
+    return out
+
+
+def fit_to_body(v: np.ndarray, body, path: str | Path = "garment", scale: float | None = None,
+                up_axis: str | None = None, align: bool = True) -> tuple[np.ndarray, str]:
+    """The garment's vertices in the body frame, meters: the file unit and up axis that put it on the T-pose body.
+
+    Every combination of a unit (``scale``, or those of :data:`FILE_UNITS` whose garment size is plausible) and an up
+    axis (``up_axis``, or both of :data:`UP_AXES`) is centred over the body (with ``align``) and scored by the median
+    distance of its vertices from the nearest body vertex; readings partly below the floor (:data:`BELOW_FLOOR`) or
+    inside the body (:data:`INSIDE_BODY`) are out. The file's own reading (meters or the given scale, Z up) is kept
+    unless another scores below :data:`SWITCH_FACTOR` of it.
+
+    Args:
+        v: (V, 3) float64 vertices in file units; body: the T-pose body; scale: meters per file unit, None to
+            detect it; up_axis: ``"z"``, ``"y"`` or None to detect it.
+
+    Returns:
+        (V, 3) float64 vertices, meters, and a note of what was changed ("" when nothing was).
+
+    Raises:
+        GarmentError: an implausible size for a given scale (:func:`check_scale`), no plausible unit, an unknown
+            up axis, or no reading within :data:`MAX_BODY_DISTANCE` of the body.
+    """
+    from scipy.spatial import cKDTree
+
+    if up_axis is not None and up_axis not in UP_AXES:
+        raise GarmentError(f"{path}: up axis {up_axis!r} is not one of {', '.join(UP_AXES)}")
+    if scale is not None:
+        check_scale(v * float(scale), path)
+        units = {"the given scale": float(scale)}
+    else:
+        ext = float(np.ptp(v, axis=0).max())
+        units = {k: u for k, u in FILE_UNITS.items() if MIN_EXTENT <= ext * u <= MAX_EXTENT}
+        if not units:
+            check_scale(v, path)  # raises with the hint for meters
+    axes = [up_axis] if up_axis is not None else list(UP_AXES)
+    body_v = body.rest_vertices.numpy().astype(np.float64)
+    body_n = vertex_normals_np(body_v, body.faces.numpy())
+    tree = cKDTree(body_v)
+    centre = np.asarray(landmarks(body).centre_xy)
+    readings = {}
+    for unit_name, unit in units.items():
+        for axis in axes:
+            x = (v * unit) @ UP_AXES[axis].T
+            x = _centred(x, centre) if align else x
+            distance, nearest = tree.query(x)
+            gap = np.einsum("ij,ij->i", x - body_v[nearest], body_n[nearest])  # signed, m
+            off = (x[:, 2] < -BELOW_FLOOR[0]).mean() > BELOW_FLOOR[1] or (gap < -INSIDE_BODY[0]).mean() > INSIDE_BODY[1]
+            readings[(unit_name, axis)] = (np.inf if off else float(np.median(distance)), x)
+    best = min(readings, key=lambda k: readings[k][0])
+    own = next(iter(readings))  # meters (or the given scale) and Z up come first
+    if own[0] in ("m", "the given scale") and readings[best][0] >= SWITCH_FACTOR * readings[own][0]:
+        best = own
+    distance, x = readings[best]
+    if not np.isfinite(distance):
+        raise GarmentError(f"{path}: the garment lies below the floor or inside the body in every unit and up axis "
+                           "tried; model it on the body in its T-pose, feet on z = 0 (`smln outfit NAME --out FILE` "
+                           "exports it)")
+    if distance > MAX_BODY_DISTANCE:
+        raise GarmentError(f"{path}: the garment does not sit on the T-pose body (its vertices are a median "
+                           f"{100 * distance:.0f} cm from it in every unit and up axis tried); model it on the body "
+                           "in its T-pose (`smln outfit NAME --out FILE` exports it)")
+    note = [] if best[0] in ("m", "the given scale") else [f"read in {best[0]}"]
+    note += [] if best[1] == "z" else ["turned from Y up to Z up"]
+    return x, ", ".join(note)
+
+
 def waist_loops(v: np.ndarray, f: np.ndarray, body) -> list[np.ndarray]:
     """Boundary loops that could be pinned as a waistband: nearly horizontal (height spread < 6 cm), between
     the crotch and 15 cm above the waist, going once around the body's vertical axis, with the garment hanging
@@ -113,34 +210,30 @@ def waist_loops(v: np.ndarray, f: np.ndarray, body) -> list[np.ndarray]:
 
 
 def garment_from_obj(
-    path: str | Path, body=None, *, name: str | None = None, scale: float = 1.0, pin_waist: bool = True,
-    material: Material | None = None, max_vertices: int = MAX_VERTICES, align: bool = True,
+    path: str | Path, body=None, *, name: str | None = None, scale: float | None = None, up_axis: str | None = None,
+    pin_waist: bool = True, material: Material | None = None, max_vertices: int = MAX_VERTICES, align: bool = True,
 ) -> Garment:
     """Load a user's garment (OBJ/PLY/...) as a :class:`Garment` fitted to ``body``.
 
-    The mesh must be in meters in the body's T-pose frame (Z up, facing -Y) after ``scale``. With ``align`` a
-    garment whose horizontal centre is more than 2 cm off the body's axis is moved over it. Skinning weights come
-    from the nearest body vertex; a waistband loop around the hips (if any) is pinned when ``pin_waist``.
+    The mesh must be modeled on the body's T-pose. Its unit (``scale`` meters per file unit) and up axis (``"z"``:
+    the body's frame, Z up facing -Y; ``"y"``: Y up facing +Z, as OBJ exporters write) are read from how well it
+    fits the body when not given (:func:`fit_to_body`). With ``align`` a garment whose horizontal centre is more than
+    2 cm off the body's axis is moved over it. Skinning weights come from the nearest body vertex; a waistband loop
+    around the hips (if any) is pinned when ``pin_waist``. What was detected is in the garment's ``note``.
 
     Raises:
-        GarmentError: see :func:`load_mesh_arrays` and :func:`check_scale`.
+        GarmentError: see :func:`load_mesh_arrays`, :func:`check_scale` and :func:`fit_to_body`.
     """
     body = body or load_body()
     v, f = load_mesh_arrays(path, max_vertices)
-    v = v * float(scale)
-    check_scale(v, path)
-    if align:
-        lm = landmarks(body)
-        mid = 0.5 * (v[:, :2].min(axis=0) + v[:, :2].max(axis=0))
-        off = np.asarray(lm.centre_xy) - mid
-        if np.linalg.norm(off) > 0.02:
-            v[:, :2] += off
+    v, note = fit_to_body(v, body, path, scale=scale, up_axis=up_axis, align=align)
     g = finish_garment(name or Path(path).stem, "user", v, f, body, pin_waist=False, loose=None,
                        material=material)
     if pin_waist:
         loops = waist_loops(v, f, body)
         if loops:
             g.pinned[max(loops, key=lambda lp: v[lp, 2].mean())] = True
+    g.note = note
     return g
 
 
