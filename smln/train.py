@@ -535,12 +535,33 @@ class Trainer:
         bar.close()
 
 
+def running_mean(values: np.ndarray, window: int) -> np.ndarray:
+    """Centred moving average of ``values`` over ``window`` samples, averaging only the samples that exist.
+
+    Near the ends the window is cut short instead of padded with zeros, so a constant series stays constant
+    (``np.convolve(..., mode="same")`` would bend its first and last ``window // 2`` samples towards 0).
+
+    Args:
+        values: (N,) float series; window: samples per average, >= 1.
+    Returns:
+        (N,) float64.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if window <= 1 or len(values) == 0:
+        return values.copy()
+    kernel = np.ones(window)
+    sums = np.convolve(values, kernel, mode="same")
+    counts = np.convolve(np.ones_like(values), kernel, mode="same")
+    return sums / counts
+
+
 def plot_log(csv_path: Path, png_path: Path) -> None:
-    """PNG of every loss term (moving average) and the validation curves of a run's log."""
+    """PNG of every loss term (moving average) and the validation curves of a run's log; x = optimiser step."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
 
     rows = list(csv.DictReader(open(csv_path)))
     if not rows:
@@ -549,18 +570,23 @@ def plot_log(csv_path: Path, png_path: Path) -> None:
     if any(r.get("layer_friction") not in ("", None) for r in rows):
         terms.append("layer_friction")
     vals = ["val_strain_mean", "val_h_coll", "val_l_coll", "val_frames"]
+    keys = terms + vals
     fig, axes = plt.subplots(3 + (len(terms) > 8), 4, figsize=(16, 10 + 3.3 * (len(terms) > 8)))
-    for ax, key in zip(axes.flat, terms + vals, strict=False):
+    for ax in axes.flat[len(keys):]:
+        ax.set_visible(False)
+    step_format = FuncFormatter(lambda s, _: f"{s / 1000:g}k" if abs(s) >= 1000 else f"{s:g}")
+    for ax, key in zip(axes.flat, keys, strict=False):
         pts = [(float(r["step"]), float(r[key])) for r in rows if r.get(key) not in ("", None)]
         if not pts:
             ax.set_visible(False)
             continue
         s, v = np.array(pts).T
         if not key.startswith("val_") and len(v) > 20:
-            k = max(1, len(v) // 50)
-            v = np.convolve(v, np.ones(k) / k, mode="same")
+            v = running_mean(v, max(1, len(v) // 50))
         ax.plot(s, v)
         ax.set_title(key)
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=5))
+        ax.xaxis.set_major_formatter(step_format)
         if key in ("stretch", "collision", "repulsion", "bending", "friction", "layer_friction") and (v > 0).all():
             ax.set_yscale("log")
     fig.tight_layout()

@@ -166,6 +166,22 @@ def test_ema_update_is_the_moving_average():
         torch.testing.assert_close(e, 0.9 * b + 0.1 * p)
 
 
+def test_running_mean_of_the_loss_plot_is_exact_at_the_ends():
+    """A constant series stays constant (a zero-padded convolution bends its ends towards 0); the ends average
+    the samples that exist; the interior is the plain centred mean."""
+    import numpy as np
+
+    from smln.train import running_mean
+
+    np.testing.assert_allclose(running_mean(np.full(30, 4.0), 5), np.full(30, 4.0))
+    series = np.arange(10, dtype=float)
+    out = running_mean(series, 3)
+    assert out[0] == pytest.approx((0 + 1) / 2)  # window cut at the start: samples 0, 1
+    assert out[-1] == pytest.approx((8 + 9) / 2)
+    np.testing.assert_allclose(out[1:-1], series[1:-1])  # a centred mean of a straight line is the line
+    np.testing.assert_allclose(running_mean(series, 1), series)
+
+
 def test_variant_loss_weights():
     """full and no_repulsion_layer train with the repulsion loss (λr of LossWeights.training, or the flag);
     baseline without it; every other weight is the paper's; the friction between layers is off by default and,
