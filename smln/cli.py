@@ -135,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("train", "smln.train", "cli_main", "train a checkpoint (self-supervised)"),
         ("eval", "smln.evaluate", "cli_main", "evaluate checkpoints: the paper's tables"),
         ("export", "smln.export", "cli_main", "convert a rollout NPZ to OBJ sequence / PC2 / GLB"),
+        ("select", "smln.selection", "cli_main", "rank checkpoints (a run's snapshots) by rollouts on training scenes"),
     ):
         p = sub.add_parser(name, help=helptext, add_help=False)
         p.set_defaults(func=_load_command(module, func))
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
-    if args.command in ("rollout", "train", "eval", "export"):
+    if args.command in ("rollout", "train", "eval", "export", "select"):
         args.argv = rest
     elif rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")

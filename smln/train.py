@@ -75,6 +75,7 @@ class TrainConfig:
     ema_decay: float = 0.999
     init_from: str | None = None
     save_every: int = 250
+    snapshot_every: int = 0  # > 0: keep the averaged weights every N steps as OUT/snapshots/step_NNNNNNN (smln select)
     validate_every: int = 500
     validation_frames: int = 120
     validation_outfit: str | None = None
@@ -498,7 +499,7 @@ class Trainer:
         started = time.time() - self.wall
         bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not main, dynamic_ncols=True)
         pending: list[dict[str, float]] = []
-        last_save, last_val = self.step, self.step
+        last_save, last_val, last_snapshot = self.step, self.step, self.step
         while self.step < cfg.max_steps and (time.time() - started) < budget:
             t0 = time.time()
             logs = self.run_episode()
@@ -520,6 +521,10 @@ class Trainer:
                     if val["val_score"] < self.best_score:
                         self.best_score = val["val_score"]
                         self.save_checkpoint("best", {"validation": val})
+            if cfg.snapshot_every > 0 and self.step - last_snapshot >= cfg.snapshot_every:
+                last_snapshot = self.step
+                if main:
+                    self.save_checkpoint(f"snapshots/step_{self.step:07d}")
             if self.step - last_save >= cfg.save_every:
                 last_save = self.step
                 if main:
@@ -627,6 +632,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--shapes", nargs="+")
     p.add_argument("--save-every", type=int)
     p.add_argument("--validate-every", type=int)
+    p.add_argument("--snapshot-every", type=int,
+                   help="keep the averaged weights every N steps as OUT/snapshots/step_NNNNNNN.{safetensors,json} "
+                        "(default 0: off), "
+                        "for `smln select` to score on more scenes than the single validation clip")
     p.add_argument("--rollout-max", type=int)
     p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
     p.add_argument("--repulsion-weight", type=float,
@@ -665,6 +674,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("lr", "lr"), ("lr_halving_steps", "lr_halving_steps"),
                       ("threads", "threads"), ("outfits", "outfits"), ("motions", "motions"),
                       ("shapes", "shapes"), ("save_every", "save_every"), ("validate_every", "validate_every"),
+                      ("snapshot_every", "snapshot_every"),
                       ("rollout_max", "rollout_max"), ("init_from", "init_from"),
                       ("repulsion_weight", "repulsion_weight"), ("collision_weight", "collision_weight"),
                       ("stretch_weight", "stretch_weight"),

@@ -30,7 +30,8 @@ def _params(trainer: Trainer) -> torch.Tensor:
 
 @pytest.mark.slow
 def test_training_steps_reduce_nothing_to_nan_and_write_logs(tmp_path):
-    trainer = train(["--out", str(tmp_path / "run"), "--max-steps", "6", "--outfits", _outfit(), *TINY])
+    trainer = train(["--out", str(tmp_path / "run"), "--max-steps", "6", "--outfits", _outfit(), "--snapshot-every",
+                     "2", *TINY])
     assert trainer.step >= 6
     assert torch.isfinite(_params(trainer)).all()
     for name in ("log.csv", "loss.png", "train_state.pt", "config.json"):
@@ -43,6 +44,13 @@ def test_training_steps_reduce_nothing_to_nan_and_write_logs(tmp_path):
     saved = torch.cat([p.flatten() for p in model.parameters()])
     assert torch.equal(saved, torch.cat([p.detach().flatten() for p in trainer.ema.parameters()]))
     assert not torch.equal(saved, _params(trainer))
+    # --snapshot-every 2: the averaged weights kept at least 2 steps apart, each named by its step
+    snapshots = sorted((tmp_path / "run" / "snapshots").glob("step_*.json"))
+    steps = [int(p.stem.removeprefix("step_")) for p in snapshots]
+    assert len(steps) >= 2 and all(b - a >= 2 for a, b in zip(steps, steps[1:], strict=False))
+    assert steps[0] >= 2 and steps[-1] <= trainer.step
+    for path, step in zip(snapshots, steps, strict=True):
+        assert load_checkpoint(path)[1]["training"]["steps"] == step
 
 
 @pytest.mark.slow
