@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 from pathlib import Path
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "shipping_rule.py"
@@ -42,3 +43,21 @@ def test_missing_variant_fails():
     del candidate["baseline"]
     checks = rule.check(candidate, shipped, "seen")
     assert any(not ok and "baseline evaluated" in text for text, ok in checks)
+
+
+def _run(outfit: str, motion: str, l_coll: float, method: str = "full"):
+    from smln.evaluate import RunResult
+
+    return RunResult(method, outfit, motion, "train", {"l_coll": l_coll})
+
+
+def test_paired_differences_are_per_scene_and_only_on_common_scenes():
+    shipped = [_run("a", "m1", 1.0), _run("a", "m2", 2.0), _run("b", "m1", 3.0), _run("b", "m1", 9.0, "baseline")]
+    candidate = [_run("a", "m1", 1.5), _run("a", "m2", 1.0), _run("b", "m1", 3.5), _run("c", "m1", 0.0)]
+    d = rule.paired_differences(candidate, shipped, "l_coll")
+    # differences +0.5, -1.0, +0.5 (scene c is not in the shipped evaluation; the baseline row is another method)
+    assert d["scenes"] == 3 and d["better"] == 1 and d["worse"] == 2
+    assert d["mean"] == 0.0
+    assert d["se"] == (((0.5**2 + 1.0**2 + 0.5**2) / 2) ** 0.5) / 3**0.5
+    one = rule.paired_differences(candidate[:1], shipped, "l_coll")
+    assert one["mean"] == 0.5 and math.isnan(one["se"])  # no spread from one scene
