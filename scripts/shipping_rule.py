@@ -44,11 +44,6 @@ def load_runs(paths: list[Path]) -> list[RunResult]:
         raise SystemExit(f"cannot read evaluations: {exc}") from exc
 
 
-def load_rows(paths: list[Path]) -> dict[str, dict[str, float]]:
-    """Frame-weighted figures per method of all ``smln eval --json`` outputs in ``paths``."""
-    return aggregate(load_runs(paths))
-
-
 def paired_differences(candidate: list[RunResult], shipped: list[RunResult], key: str,
                        method: str = "full") -> dict[str, float]:
     """Per-scene differences candidate − shipped of ``key`` for ``method`` on the outfit × clip pairs both have.

@@ -634,8 +634,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--validate-every", type=int)
     p.add_argument("--snapshot-every", type=int,
                    help="keep the averaged weights every N steps as OUT/snapshots/step_NNNNNNN.{safetensors,json} "
-                        "(default 0: off), "
-                        "for `smln select` to score on more scenes than the single validation clip")
+                        "(default 0: off), for `smln select` to score on more scenes than the validation clip")
     p.add_argument("--rollout-max", type=int)
     p.add_argument("--init-from", help="start from this checkpoint's weights and step count (fresh optimiser)")
     p.add_argument("--repulsion-weight", type=float,
