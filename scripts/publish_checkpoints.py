@@ -1,8 +1,10 @@
 """Copy trained runs into ``checkpoints/<variant>/`` with their model cards (JSON + markdown).
 
-    python scripts/publish_checkpoints.py --runs runs --which best [--eval-json results.json]
+    python scripts/publish_checkpoints.py --runs runs --which best [--eval-json results.json] \
+        [--pick full=snapshots/step_0286037 ...]
 
-For each variant (full, no_repulsion_layer, baseline) it copies ``runs/<variant>/<which>.safetensors`` to
+For each variant (full, no_repulsion_layer, baseline) it copies ``runs/<variant>/<which>.safetensors`` (``--pick
+VARIANT=WHICH`` names another checkpoint of that variant's run, e.g. a snapshot ``smln select`` chose) to
 ``checkpoints/<variant>/model.safetensors``, writes ``card.json`` (the training card, plus the evaluation figures
 of that variant when ``--eval-json`` from ``smln eval --json`` is given) and a short ``README.md`` model card.
 """
@@ -132,15 +134,23 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", default="runs")
-    p.add_argument("--which", default="best", choices=["best", "last"])
+    p.add_argument("--which", default="best", help="best, last, or a snapshot: snapshots/step_NNNNNNN")
+    p.add_argument("--pick", nargs="+", default=[], metavar="VARIANT=WHICH",
+                   help="per-variant override of --which, e.g. baseline=snapshots/step_0285487")
     p.add_argument("--dest", default="checkpoints")
     p.add_argument("--eval-json", nargs="+", help="smln eval --json outputs (one or several, e.g. one per variant)")
     p.add_argument("--variants", nargs="+", default=list(DESCRIPTIONS))
     p.add_argument("--prefix", default="", help="run directories are RUNS/<prefix><variant> (e.g. ft_)")
     a = p.parse_args()
     results = [row for f in a.eval_json for row in json.loads(Path(f).read_text())] if a.eval_json else None
+    picks = dict(item.split("=", 1) for item in a.pick if "=" in item)
+    if len(picks) != len(a.pick) or not set(picks) <= set(a.variants):
+        p.error(f"--pick takes VARIANT=WHICH with VARIANT one of {a.variants}; got {a.pick}")
     for v in a.variants:
-        print(publish(Path(a.runs) / f"{a.prefix}{v}", v, a.which, Path(a.dest), results))
+        which = picks.get(v, a.which)
+        if not (Path(a.runs) / f"{a.prefix}{v}" / f"{which}.safetensors").is_file():
+            p.error(f"no checkpoint {which}.safetensors in {Path(a.runs) / f'{a.prefix}{v}'}")
+        print(publish(Path(a.runs) / f"{a.prefix}{v}", v, which, Path(a.dest), results))
 
 
 if __name__ == "__main__":

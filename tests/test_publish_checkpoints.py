@@ -38,3 +38,16 @@ def test_publish_to_an_experimental_folder(tmp_path):
     readme = (out / "README.md").read_text()
     assert f'load_checkpoint("{out.as_posix()}")' in readme  # the folder it was published to, not checkpoints/full
     assert card["training"]["steps"] == 7
+
+
+def test_publish_a_snapshot_by_its_name(tmp_path):
+    torch.manual_seed(1)
+    model = SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1))))
+    run = tmp_path / "runs" / "x_baseline"
+    save_checkpoint(run / "snapshots" / "step_0000005", model,
+                    card={"variant": "baseline", "training": {"steps": 5, "hardware": "test"}})
+    out = publish_checkpoints.publish(run, "baseline", "snapshots/step_0000005", tmp_path / "dest", None)
+    loaded, card = load_checkpoint(out)
+    for key, value in model.state_dict().items():
+        assert torch.equal(loaded.state_dict()[key], value), key
+    assert card["training"]["steps"] == 5 and "baseline" in (out / "README.md").read_text()
