@@ -19,7 +19,8 @@ docs/results/r22_held_*.json --max-sink-mm 34.5``, sessions 12-15 against soup14
 docs/results/soup14_seen.json --shipped-held docs/results/soup14_unseen.json --max-sink-mm 122``. OUTDIR is the
 output of ``scripts/evaluate_candidate.sh``.
 
-``--rule margin`` (the default since session 20; declared before the evaluation of r27). Rules 2 and 3 as above; rule 1 becomes:
+``--rule margin`` (the default since session 20; declared before the evaluation of r27). Rules 2 and 3 as above;
+rule 1 becomes:
 
 1a. no target figure of the full model is *significantly* worse than the shipped full model's, on either split:
     the frame-weighted paired difference over the scenes (candidate − shipped, each outfit × clip; the fallback
