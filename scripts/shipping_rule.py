@@ -64,24 +64,6 @@ def load_runs(paths: list[Path]) -> list[RunResult]:
         raise SystemExit(f"cannot read evaluations: {exc}") from exc
 
 
-def paired_differences(candidate: list[RunResult], shipped: list[RunResult], key: str,
-                       method: str = "full") -> dict[str, float]:
-    """Per-scene differences candidate − shipped of ``key`` for ``method`` on the outfit × clip pairs both have.
-
-    Returns:
-        ``scenes`` (count), ``mean`` (unweighted mean difference), ``se`` (its standard error, sample standard
-        deviation / sqrt(scenes); NaN under two scenes), ``better`` / ``worse`` (scenes with a lower / higher value).
-    """
-    old = {(r.outfit, r.motion): r.metrics[key] for r in shipped if r.method == method}
-    diffs = [r.metrics[key] - old[(r.outfit, r.motion)] for r in candidate
-             if r.method == method and (r.outfit, r.motion) in old]
-    n = len(diffs)
-    mean = sum(diffs) / n if n else math.nan
-    se = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (n - 1) / n) if n > 1 else math.nan
-    return {"scenes": float(n), "mean": mean, "se": se, "better": float(sum(d < 0 for d in diffs)),
-            "worse": float(sum(d > 0 for d in diffs))}
-
-
 def _scene_value(run: RunResult, key: str) -> float:
     """``key`` of one scene; the fallback frames as a fraction of the scene's frames, so scenes can be averaged."""
     if key == "fallback_frames":
@@ -90,31 +72,33 @@ def _scene_value(run: RunResult, key: str) -> float:
 
 
 def weighted_paired_difference(candidate: list[RunResult], shipped: list[RunResult], key: str,
-                               method: str = "full") -> dict[str, float]:
-    """Frame-weighted paired difference candidate − shipped of ``key`` for ``method`` over the scenes both have.
+                               method: str = "full", weighted: bool = True) -> dict[str, float]:
+    """Paired difference candidate − shipped of ``key`` for ``method`` over the outfit × clip scenes both have.
 
-    With scene weights p_i = frames_i / Σ frames and per-scene differences d_i, the difference is d = Σ p_i d_i
-    (for L-Coll, H-Coll and strain the difference of the frame-weighted means :func:`smln.evaluate.aggregate`
-    prints; for ``fallback_frames`` the difference of the fallback fractions) and its standard error is
-    sqrt(n / (n − 1) · Σ p_i² (d_i − d)²), which is the usual sd / sqrt(n) when all scenes have equal frames.
+    With scene weights p_i = frames_i / Σ frames (1 / n with ``weighted=False``) and per-scene differences d_i, the
+    difference is d = Σ p_i d_i (weighted: for L-Coll, H-Coll and strain the difference of the frame-weighted means
+    :func:`smln.evaluate.aggregate` prints; for ``fallback_frames`` the difference of the fallback fractions) and its
+    standard error is sqrt(n / (n − 1) · Σ p_i² (d_i − d)²), the usual sd / sqrt(n) when all weights are equal.
 
     Returns:
         ``scenes`` (common scenes), ``unmatched`` (scenes of ``method`` in only one of the two), ``mean`` (d),
-        ``se`` (NaN under two scenes).
+        ``se`` (NaN under two scenes), ``better`` / ``worse`` (scenes with a lower / higher value).
     """
     old = {(r.outfit, r.motion): r for r in shipped if r.method == method}
     new = {(r.outfit, r.motion): r for r in candidate if r.method == method}
     common = sorted(old.keys() & new.keys())
     n = len(common)
     if n == 0:
-        return {"scenes": 0.0, "unmatched": float(len(old) + len(new)), "mean": math.nan, "se": math.nan}
-    w = [new[s].metrics["num_frames"] for s in common]
+        return {"scenes": 0.0, "unmatched": float(len(old) + len(new)), "mean": math.nan, "se": math.nan,
+                "better": 0.0, "worse": 0.0}
+    w = [new[s].metrics["num_frames"] if weighted else 1.0 for s in common]
     p = [wi / sum(w) for wi in w]
     d = [_scene_value(new[s], key) - _scene_value(old[s], key) for s in common]
     mean = sum(pi * di for pi, di in zip(p, d, strict=True))
     se = (math.sqrt(n / (n - 1) * sum(pi**2 * (di - mean) ** 2 for pi, di in zip(p, d, strict=True)))
           if n > 1 else math.nan)
-    return {"scenes": float(n), "unmatched": float(len(old.keys() ^ new.keys())), "mean": mean, "se": se}
+    return {"scenes": float(n), "unmatched": float(len(old.keys() ^ new.keys())), "mean": mean, "se": se,
+            "better": float(sum(di < 0 for di in d)), "worse": float(sum(di > 0 for di in d))}
 
 
 def check_margin(candidate_runs: list[RunResult], shipped_runs: list[RunResult], split: str,
@@ -198,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     print("paired per-scene differences of the full model, candidate - shipped (information, not the rule):")
     for split, (new, old) in runs.items():
         for key, name in TARGETS[:3]:
-            d = paired_differences(new, old, key)
+            d = weighted_paired_difference(new, old, key, weighted=False)
             scale = 100.0 if key == "strain_mean" else 1.0
             print(f"  {split}: {name} {d['mean'] * scale:+.3f} ± {d['se'] * scale:.3f} (SE) over {int(d['scenes'])} "
                   f"scenes, {int(d['better'])} better, {int(d['worse'])} worse")

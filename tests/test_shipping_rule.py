@@ -54,12 +54,12 @@ def _run(outfit: str, motion: str, l_coll: float, method: str = "full"):
 def test_paired_differences_are_per_scene_and_only_on_common_scenes():
     shipped = [_run("a", "m1", 1.0), _run("a", "m2", 2.0), _run("b", "m1", 3.0), _run("b", "m1", 9.0, "baseline")]
     candidate = [_run("a", "m1", 1.5), _run("a", "m2", 1.0), _run("b", "m1", 3.5), _run("c", "m1", 0.0)]
-    d = rule.paired_differences(candidate, shipped, "l_coll")
+    d = rule.weighted_paired_difference(candidate, shipped, "l_coll", weighted=False)
     # differences +0.5, -1.0, +0.5 (scene c is not in the shipped evaluation; the baseline row is another method)
     assert d["scenes"] == 3 and d["better"] == 1 and d["worse"] == 2
     assert d["mean"] == 0.0
     assert d["se"] == (((0.5**2 + 1.0**2 + 0.5**2) / 2) ** 0.5) / 3**0.5
-    one = rule.paired_differences(candidate[:1], shipped, "l_coll")
+    one = rule.weighted_paired_difference(candidate[:1], shipped, "l_coll", weighted=False)
     assert one["mean"] == 0.5 and math.isnan(one["se"])  # no spread from one scene
 
 
