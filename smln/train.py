@@ -38,6 +38,7 @@ from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
 
 NOISE_MODES = ("isotropic", "normal")  # TrainConfig.noise_mode, see Trainer.input_noise
+START_SAMPLINGS = ("uniform", "speed")  # TrainConfig.start_sampling, see EpisodeSampler.start_probabilities
 LAYER_FRICTION_NORMALS = ("weight", "contact")  # TrainConfig.layer_friction_normal, see LossWeights
 
 VARIANTS = {
@@ -72,6 +73,8 @@ class TrainConfig:
     noise_mode: str = "isotropic"  # NOISE_MODES; "normal": along each cloth vertex normal only (session 10)
     noise_normal_std: float = 0.0  # σ of a second offset along the vertex normals, added to the noise above, m
     settle_steps: int = 1
+    start_sampling: str = "uniform"  # START_SAMPLINGS; "speed": favour fast phases of a clip (session 21)
+    speed_mix: float = 0.5  # with start_sampling "speed": the share of the speed-proportional draw (rest uniform)
     ema_decay: float = 0.999
     init_from: str | None = None
     save_every: int = 250
@@ -160,6 +163,7 @@ class EpisodeSampler:
         self.shapes = cfg.shapes
         self.rng = np.random.default_rng(seed)
         self.cfg = cfg
+        self._speeds: dict[tuple[str, str], np.ndarray] = {}
 
     def rollout_length(self, step: int) -> int:
         c = self.cfg
@@ -171,14 +175,52 @@ class EpisodeSampler:
         outfit = self.outfits[self.rng.integers(len(self.outfits))]
         shape = self.shapes[self.rng.integers(len(self.shapes))]
         motion = self.motions[self.rng.integers(len(self.motions))]
-        num_frames = cache.body(shape, motion).num_frames
+        seq = cache.body(shape, motion)
+        num_frames = seq.num_frames
         length = self.rollout_length(step)
         last_start = max(1, num_frames - 2 - length)
-        start = int(self.rng.integers(1, last_start + 1))
+        if self.cfg.start_sampling == "speed":
+            p = self.start_probabilities((shape, motion), seq.vertices, length, last_start)
+            start = 1 + int(self.rng.choice(last_start, p=p))
+        else:
+            start = int(self.rng.integers(1, last_start + 1))
         length = min(length, num_frames - 1 - start)
         # only the episode's frames are skinned: the scene is cut to [start - 1, start + length]
         scene = cache.get(outfit, shape, motion, window=(start - 1, start + length + 1))
         return scene, 1, length
+
+    def start_probabilities(self, key: tuple[str, str], body_vertices: torch.Tensor, length: int,
+                            last_start: int) -> np.ndarray:
+        """(last_start,) float64 probabilities of the start frames 1 .. last_start for ``start_sampling="speed"``.
+
+        A mixture: ``speed_mix`` of it proportional to the body's mean vertex speed over the episode's frames
+        start .. start + length (m/frame), the rest uniform. Fast phases (jumps, landings, pirouettes) are where
+        the rollouts penetrate the body and tangle (session 21: per-frame H-Coll of the test rollouts follows the
+        body speed of the 10 frames before with correlation 0.5-0.7), and a uniform start samples them rarely.
+
+        Args:
+            key: (shape, motion), the cache key of the clip's per-frame speeds.
+            body_vertices: (T, Vb, 3) the clip's body vertices, meters.
+            length: episode length in steps; last_start: the last allowed start frame (>= 1).
+        """
+        speed = self._speeds.get(key)
+        if speed is None:  # (T,) mean vertex displacement from frame t-1 to t, 0 at t = 0
+            b = torch.as_tensor(body_vertices, dtype=torch.float32)
+            speed = np.zeros(b.shape[0])
+            speed[1:] = (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).double().numpy()
+            self._speeds[key] = speed
+        t = speed.shape[0]
+        csum = np.concatenate([[0.0], np.cumsum(speed)])
+        starts = np.arange(1, last_start + 1)
+        stops = np.minimum(starts + length + 1, t)  # frames start .. start + length (the episode's body frames)
+        window = (csum[stops] - csum[starts]) / np.maximum(stops - starts, 1)
+        uniform = np.full(last_start, 1.0 / last_start)
+        total = window.sum()
+        if not total > 0:  # a still clip: nothing to favour
+            return uniform
+        mix = self.cfg.speed_mix
+        p = mix * window / total + (1.0 - mix) * uniform
+        return p / p.sum()
 
 
 # ------------------------------------------------------------------------------------------------- training
@@ -192,6 +234,11 @@ class Trainer:
             raise ValueError(f"unknown variant {cfg.variant!r}; choose one of {', '.join(VARIANTS)}")
         if cfg.noise_mode not in NOISE_MODES:
             raise ValueError(f"unknown noise_mode {cfg.noise_mode!r}; choose one of {', '.join(NOISE_MODES)}")
+        if cfg.start_sampling not in START_SAMPLINGS:
+            raise ValueError(f"unknown start_sampling {cfg.start_sampling!r}; choose one of "
+                             f"{', '.join(START_SAMPLINGS)}")
+        if not 0.0 <= cfg.speed_mix <= 1.0:
+            raise ValueError(f"speed_mix must be in [0, 1], got {cfg.speed_mix!r}")
         if cfg.noise_std < 0 or cfg.noise_normal_std < 0:
             raise ValueError(f"input noise σ must be >= 0 (noise_std {cfg.noise_std}, noise_normal_std "
                              f"{cfg.noise_normal_std})")
@@ -623,6 +670,12 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--noise-normal-std", type=float,
                    help="σ of a second input-noise offset along the vertex normals, added to the one above, m "
                         "(default 0)")
+    p.add_argument("--start-sampling", choices=START_SAMPLINGS,
+                   help="how an episode's start frame is drawn in its clip: uniform (default) or speed (a mixture "
+                        "favouring the clip's fast phases by the body's mean vertex speed; --speed-mix sets the share)")
+    p.add_argument("--speed-mix", type=float,
+                   help="with --start-sampling speed: share of the speed-proportional draw, the rest uniform "
+                        "(default 0.5)")
     p.add_argument("--compile", action="store_true", default=None,
                    help="run the processor through torch.compile, forward and backward (13-18 %% faster steps on "
                         "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
@@ -679,6 +732,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("stretch_weight", "stretch_weight"),
                       ("collision_eps", "collision_eps"), ("repulsion_eps", "repulsion_eps"),
                       ("noise_std", "noise_std"), ("noise_mode", "noise_mode"), ("compile", "compile"),
+                      ("start_sampling", "start_sampling"), ("speed_mix", "speed_mix"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),
                       ("validation_skin_guard", "validation_skin_guard")):

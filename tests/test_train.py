@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -388,3 +389,68 @@ def test_mixed_input_noise_adds_a_normal_offset_to_the_isotropic_one(tmp_path):
         Trainer(TrainConfig(noise_normal_std=-0.001, model=tiny), tmp_path / "d")
     cfg, _ = parse_args(["--out", str(tmp_path / "run"), "--noise-normal-std", "0.0025"])
     assert cfg.noise_normal_std == 0.0025
+
+
+def _sampler(start_sampling: str, speed_mix: float = 0.5):
+    from smln.train import EpisodeSampler, TrainConfig
+
+    cfg = TrainConfig(start_sampling=start_sampling, speed_mix=speed_mix, motions=["02_01_walk"],
+                      shapes=["female_average"])
+    return EpisodeSampler(cfg, seed=0)
+
+
+def test_speed_start_probabilities_follow_the_window_speed_analytically():
+    # a 3-vertex "body": still for frames 0..9, then moving 1 cm per frame along x (frames 10..19)
+    t = torch.arange(20, dtype=torch.float32)
+    x = torch.clamp(t - 9.0, min=0.0) * 0.01
+    body = torch.zeros(20, 3, 3)
+    body[:, :, 0] = x[:, None]
+    sampler = _sampler("speed", speed_mix=1.0)
+    p = sampler.start_probabilities(("s", "m"), body, length=2, last_start=15)
+    assert p.shape == (15,) and abs(p.sum() - 1.0) < 1e-12
+    # start s uses body frames s..s+2; speed(t) = 1 cm for t >= 10, else 0. Window means: 0 for s <= 7,
+    # 1/3 cm (s = 8), 2/3 cm (s = 9), 1 cm (s >= 10)
+    window = np.array([0.0] * 7 + [1 / 3, 2 / 3] + [1.0] * 6)
+    np.testing.assert_allclose(p, window / window.sum(), rtol=1e-6)
+    # the mixture: half of it uniform
+    half = _sampler("speed", speed_mix=0.5).start_probabilities(("s", "m"), body, 2, 15)
+    np.testing.assert_allclose(half, 0.5 * window / window.sum() + 0.5 / 15, rtol=1e-6)
+    # a still clip: uniform
+    still = sampler.start_probabilities(("s2", "m"), torch.zeros(20, 3, 3), 2, 15)
+    np.testing.assert_allclose(still, np.full(15, 1 / 15))
+
+
+def test_speed_start_sampling_draws_fast_phases_more_often_on_a_real_clip():
+    from smln.data_sampling import SceneCache
+
+    cache = SceneCache(edge_length=0.05)
+    seq = cache.body("female_average", "02_01_walk")
+    b = seq.vertices
+    speed = np.r_[0.0, (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).numpy()]
+    starts = {}
+    for mode in ("uniform", "speed"):
+        sampler = _sampler(mode, speed_mix=1.0)
+        draws = []
+        for _ in range(200):
+            _, first, length = sampler.draw(0, cache)  # step 0: rollout length rollout_start (2)
+            assert first == 1 and length >= 1
+        sampler = _sampler(mode, speed_mix=1.0)
+        last = seq.num_frames - 2 - 2
+        for _ in range(2000):  # the start draw alone (the same generator calls as draw's, without skinning)
+            if mode == "speed":
+                p = sampler.start_probabilities(("female_average", "02_01_walk"), b, 2, last)
+                draws.append(1 + int(sampler.rng.choice(last, p=p)))
+            else:
+                draws.append(int(sampler.rng.integers(1, last + 1)))
+        starts[mode] = np.array(draws)
+    mean_speed = {m: speed[s].mean() for m, s in starts.items()}
+    assert mean_speed["speed"] > mean_speed["uniform"]
+
+
+def test_unknown_start_sampling_is_refused(tmp_path):
+    from smln.train import TrainConfig
+
+    with pytest.raises(ValueError, match="start_sampling"):
+        Trainer(TrainConfig(start_sampling="fast"), tmp_path)
+    with pytest.raises(ValueError, match="speed_mix"):
+        Trainer(TrainConfig(start_sampling="speed", speed_mix=1.5), tmp_path)
