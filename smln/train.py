@@ -196,7 +196,9 @@ class EpisodeSampler:
         A mixture: ``speed_mix`` of it proportional to the body's mean vertex speed over the episode's frames
         start .. start + length (m/frame), the rest uniform. Fast phases (jumps, landings, pirouettes) are where
         the rollouts penetrate the body and tangle (session 21: per-frame H-Coll of the test rollouts follows the
-        body speed of the 10 frames before with correlation 0.5-0.7), and a uniform start samples them rarely.
+        body speed of the 10 frames before with correlation 0.49-0.71), and a uniform start samples them rarely.
+        Session 21's r28 (half of the starts drawn this way, 26k steps) changed no test figure significantly
+        (docs/RESULTS.md), so ``uniform`` stays the default.
 
         Args:
             key: (shape, motion), the cache key of the clip's per-frame speeds.
