@@ -27,14 +27,8 @@ from smln.checkpoint import load_checkpoint
 from smln.data_sampling import make_scene
 from smln.evaluate import skinning_frames
 from smln.geometry import set_threads
+from smln.motion.posing import body_speed  # noqa: F401 (re-exported for the tests)
 from smln.rollout import rollout
-
-
-def body_speed(vertices: np.ndarray) -> np.ndarray:
-    """(T,) mean vertex displacement from frame t-1 to t of a (T, Vb, 3) body sequence, m/frame (0 at t = 0)."""
-    v = np.zeros(vertices.shape[0])
-    v[1:] = np.linalg.norm(vertices[1:] - vertices[:-1], axis=-1).mean(axis=1)
-    return v
 
 
 def trailing_mean(x: np.ndarray, window: int) -> np.ndarray:
@@ -77,8 +71,9 @@ def main() -> None:
                               fallback=True))
         h = np.array([f.metrics["h_coll"] for f in frames])
         h_skin = np.array([f.metrics["h_coll"] for f in skinning_frames(scene, len(h))])
-        speed = body_speed(scene.body.vertices[: len(h)].numpy())
-        fast = trailing_mean(speed, a.window) > np.median(trailing_mean(speed, a.window))
+        speed = body_speed(scene.body.vertices[: len(h)])
+        recent = trailing_mean(speed, a.window)
+        fast = recent > np.median(recent)
         report[spec] = {
             "frames": len(h),
             "fallback_frames": int(sum(f.fallback for f in frames)),

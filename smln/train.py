@@ -206,11 +206,10 @@ class EpisodeSampler:
             length: episode length in steps; last_start: the last allowed start frame (>= 1).
         """
         speed = self._speeds.get(key)
-        if speed is None:  # (T,) mean vertex displacement from frame t-1 to t, 0 at t = 0
-            b = torch.as_tensor(body_vertices, dtype=torch.float32)
-            speed = np.zeros(b.shape[0])
-            speed[1:] = (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).double().numpy()
-            self._speeds[key] = speed
+        if speed is None:
+            from smln.motion.posing import body_speed
+
+            speed = self._speeds[key] = body_speed(body_vertices)
         t = speed.shape[0]
         csum = np.concatenate([[0.0], np.cumsum(speed)])
         starts = np.arange(1, last_start + 1)

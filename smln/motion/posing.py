@@ -41,6 +41,17 @@ class BodySequence:
                             self.name, self.shape)
 
 
+def body_speed(vertices: torch.Tensor | np.ndarray) -> np.ndarray:
+    """(T,) float64 mean vertex displacement from frame t-1 to t of a (T, Vb, 3) body sequence, m/frame (0 at t = 0).
+
+    How fast the body moves at each frame: the training sampler's ``start_sampling="speed"`` weights
+    (:class:`smln.train.EpisodeSampler`) and ``bench/hcoll_speed.py``."""
+    b = torch.as_tensor(vertices)  # its own float precision (float32 bodies: no float64 copy of a whole clip)
+    speed = np.zeros(b.shape[0])
+    speed[1:] = (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).double().numpy()
+    return speed
+
+
 def floor_offsets(lowest: np.ndarray, iterations: int = 3) -> np.ndarray:
     """Per-frame vertical offsets that put the feet on z = 0.
 
