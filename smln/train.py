@@ -392,19 +392,26 @@ class Trainer:
 
     def init_from(self, path: str) -> None:
         """Start from a checkpoint's weights (and its step count, so the lr and rollout-length schedules go on
-        from there); the optimiser starts fresh. The checkpoint's architecture must match this run's."""
+        from there); the optimiser starts fresh. The checkpoint's architecture must match this run's, lack only the
+        body-normal edge columns (:func:`~smln.model.migrate.widen_body_edges`), or be a shallower version of it
+        (:func:`~smln.model.migrate.grow`: more hidden layers per MLP or more steps per schedule visit in the run's
+        ``model`` config); the last two start from the checkpoint's function exactly."""
         from smln.checkpoint import load_checkpoint
+        from smln.model.migrate import grow, growth_error, widen_body_edges
 
         model, card = load_checkpoint(path)
         old_cfg, new_cfg = model.config.to_dict(), self.model.config.to_dict()
-        if old_cfg != new_cfg and old_cfg != {**new_cfg, "body_normal_features": False}:
-            raise ValueError(f"{path}: architecture differs from this run's model config")
-        if old_cfg != new_cfg:  # a checkpoint from before the body-normal edge features: widen it, same function
-            from smln.model.migrate import widen_body_edges
-
-            widen_body_edges(model, self.model, self.body_normal_samples())
-        else:
+        if old_cfg == new_cfg:
             self.model.load_state_dict(model.state_dict())
+        elif old_cfg == {**new_cfg, "body_normal_features": False}:
+            # a checkpoint from before the body-normal edge features: widen it, same function
+            widen_body_edges(model, self.model, self.body_normal_samples())
+        elif growth_error(model.config, self.model.config) is None:
+            # this run's model is deeper (more hidden layers, more steps per visit): grow it, same function
+            grow(model, self.model)
+        else:
+            raise ValueError(f"{path}: architecture differs from this run's model config and is not a growth of it "
+                             f"({growth_error(model.config, self.model.config)})")
         self.ema.load_state_dict(self.model.state_dict())
         tr = card.get("training", {})
         self.step = int(tr.get("steps", 0))

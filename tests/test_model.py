@@ -275,6 +275,69 @@ def test_widen_body_edges_keeps_the_function(scene):
         widen_body_edges(old, new, samples[:, :3])
 
 
+def _trained_looking(cfg: SMLNConfig, scene) -> SMLN:
+    """A model with some normaliser statistics and weights moved off their init (eval mode)."""
+    cloth, body, xs, normals = scene
+    model = SMLN(cfg)
+    model.train()
+    for t in (1, 2):
+        topo = model.make_topology(cloth)
+        model(topo.build(xs[t - 1], xs[t], body[t], body[t + 1], xs[t + 1], body_normals_next=normals[t + 1]), topo)
+    with torch.no_grad():
+        for prm in model.parameters():
+            prm.add_(0.05 * torch.randn_like(prm))
+    return model.eval()
+
+
+@pytest.mark.parametrize("growth", [
+    {"mlp_hidden_layers": 2},
+    {"mlp_hidden_layers": 3},
+    {"schedule": ((0, 2), (1, 3), (2, 1), (1, 2), (0, 1))},
+    {"mlp_hidden_layers": 2, "schedule": ((0, 1), (1, 1), (2, 2), (1, 1), (0, 2))},
+])
+def test_grow_keeps_the_function_and_the_new_weights_train(scene, growth):
+    """A grown model (more hidden layers, more steps per schedule visit) predicts exactly what its parent did, has
+    more parameters, and a backward pass reaches the added layers (so fine-tuning can use them)."""
+    from smln.model.migrate import grow
+
+    cloth, body, xs, normals = scene
+    torch.manual_seed(3)
+    old = _trained_looking(small_config(), scene)
+    new = SMLN(small_config(**growth))
+    grow(old, new)
+    new.eval()
+    topo = old.make_topology(cloth)
+    g = topo.build(xs[0], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    with torch.no_grad():
+        po, ao, _ = old(g, topo)
+        pn, an, _ = new(g, topo)
+    assert po.abs().max() > 0
+    torch.testing.assert_close(pn, po, rtol=1e-6, atol=1e-9)
+    torch.testing.assert_close(an, ao, rtol=1e-6, atol=1e-9)
+    n_old = sum(p.numel() for p in old.parameters())
+    assert sum(p.numel() for p in new.parameters()) > n_old
+    new.train()
+    p, _, _ = new(g, topo)
+    (p ** 2).sum().backward()
+    if "mlp_hidden_layers" in growth:  # the inserted identity layer of the decoder
+        assert new.decoder[2].weight.grad.abs().sum() > 0
+    if "schedule" in growth:  # an added block: only its zero LayerNorm scales get gradient at first
+        added = new.processor.blocks[1] if growth["schedule"][0][1] == 2 else new.processor.blocks[-1]
+        assert added.node_model[-1].weight.grad.abs().sum() > 0
+
+
+def test_grow_refuses_what_is_not_a_growth():
+    from smln.model.migrate import grow
+
+    old = SMLN(small_config(mlp_hidden_layers=2, schedule=((0, 2), (1, 1), (2, 1), (1, 1), (0, 1))))
+    for bad, match in [({"latent_size": 8}, "differ"), ({"mlp_hidden_layers": 1}, "shrink"),
+                       ({"schedule": ((0, 2), (1, 1), (0, 1))}, "same levels"),
+                       ({"schedule": ((0, 1), (1, 1), (2, 1), (1, 1), (0, 1))}, "lose")]:
+        cfg = {"mlp_hidden_layers": 2, "schedule": old.config.schedule, **bad}
+        with pytest.raises(ValueError, match=match):
+            grow(old, SMLN(small_config(**cfg)))
+
+
 def _compile_case():
     model = SMLN(small_config()).eval()
     return (model, *_one_step_graph(model))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from smln.geometry import vertex_normals
 from smln.train import Trainer, train
 
 TINY = [
@@ -154,6 +155,37 @@ def test_init_from_a_checkpoint_without_body_normals_widens_it(tmp_path):
     with pytest.raises(ValueError, match="architecture"):  # anything else that differs is still refused
         train(["--out", str(tmp_path / "c"), "--max-steps", "0", "--init-from", str(tmp_path / "a" / "last"),
                "--config", str(tmp_path / "small.json"), *common])
+
+
+@pytest.mark.slow
+def test_init_from_the_shipped_checkpoint_into_a_deeper_model_keeps_its_predictions(tmp_path):
+    """A run whose model config asks for two hidden layers per MLP and more anchor-level steps, initialised from the
+    shipped full checkpoint (one hidden layer), predicts what that checkpoint predicts on a real training state."""
+    import json
+
+    from smln.checkpoint import load_checkpoint
+
+    shipped, card = load_checkpoint("checkpoints/full")
+    steps = int(card["training"]["steps"])
+    deeper = {"mlp_hidden_layers": 2,
+              "schedule": [[lv, n + (1 if lv > 0 else 0)] for lv, n in shipped.config.schedule]}
+    (tmp_path / "deeper.json").write_text(json.dumps({"model": deeper}))
+    trainer = train(["--out", str(tmp_path / "g"), "--max-steps", str(steps), "--init-from", "checkpoints/full",
+                     "--config", str(tmp_path / "deeper.json"), "--outfits", _outfit(), *TINY])
+    assert trainer.step == steps and trainer.model.config.mlp_hidden_layers == 2
+    assert sum(p.numel() for p in trainer.model.parameters()) > 1.3 * sum(p.numel() for p in shipped.parameters())
+    scene = trainer.cache.get(_outfit(), "female_average", "02_01_walk")
+    body_next = scene.body.vertices[6]
+    g = scene.topology.build(scene.skinned[4], scene.skinned[5], scene.body.vertices[5], body_next,
+                             scene.skinned[6], body_normals_next=vertex_normals(body_next, scene.body.faces))
+    shipped.eval()
+    trainer.model.eval()
+    with torch.no_grad():
+        p_old, a_old, _ = shipped(g, scene.topology)
+        p_new, a_new, _ = trainer.model(g, scene.topology)
+    assert p_old.abs().max() > 1e-5
+    torch.testing.assert_close(p_new, p_old, rtol=1e-5, atol=1e-8)
+    torch.testing.assert_close(a_new, a_old, rtol=1e-5, atol=1e-8)
 
 
 def test_ema_update_is_the_moving_average():

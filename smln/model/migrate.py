@@ -9,10 +9,13 @@ statistics for the old columns and takes those of the new ones from samples of r
 
 from __future__ import annotations
 
+import re
+
 import torch
+from torch import nn
 
 from smln.graph import LEGACY_BODY_EDGE_DIM
-from smln.model.smln import SMLN
+from smln.model.smln import SMLN, SMLNConfig
 
 
 def widen_body_edges(old: SMLN, new: SMLN, new_columns: torch.Tensor) -> None:
@@ -49,3 +52,125 @@ def widen_body_edges(old: SMLN, new: SMLN, new_columns: torch.Tensor) -> None:
     state["body_norm.total"] = torch.cat([state["body_norm.total"], count * mean])
     state["body_norm.total_sq"] = torch.cat([state["body_norm.total_sq"], count * (var + mean * mean)])
     new.load_state_dict(state, strict=True)
+
+
+GROWABLE_FIELDS = ("mlp_hidden_layers", "schedule")
+_MLP_KEY = re.compile(r"^(node_encoder|mesh_encoder|virtual_encoder|body_encoder|decoder|coarse_encoders\.\d+)"
+                      r"\.(\d+)\.(weight|bias)$")
+_NODE_MLP_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\.node_model\.)(\d+)\.(weight|bias)$")
+_TAIL_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\.edge_models\.\w+\.tail\.)(\d+)\.(weight|bias)$")
+_BLOCK_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\..*)$")
+
+
+def growth_error(old: SMLNConfig, new: SMLNConfig) -> str | None:
+    """Why ``new`` is not a growth of ``old`` (None if it is).
+
+    A growth keeps every field except :data:`GROWABLE_FIELDS`; ``new.mlp_hidden_layers >= old``'s, and
+    ``new.schedule`` visits the same levels in the same order with at least as many steps at each visit.
+    """
+    oc, nc = old.to_dict(), new.to_dict()
+    for name in GROWABLE_FIELDS:
+        oc.pop(name)
+        nc.pop(name)
+    if oc != nc:
+        differ = sorted(k for k in oc if oc[k] != nc.get(k))
+        return f"configs differ in more than {GROWABLE_FIELDS}: {differ}"
+    if new.mlp_hidden_layers < old.mlp_hidden_layers:
+        return f"mlp_hidden_layers cannot shrink ({old.mlp_hidden_layers} -> {new.mlp_hidden_layers})"
+    if [lv for lv, _ in new.schedule] != [lv for lv, _ in old.schedule]:
+        return "the schedule must visit the same levels in the same order"
+    if any(n_new < n_old for (_, n_old), (_, n_new) in zip(old.schedule, new.schedule, strict=True)):
+        return "the schedule cannot lose steps"
+    return None
+
+
+def _block_index_map(old: SMLNConfig, new: SMLNConfig) -> tuple[dict[int, int], list[int]]:
+    """Old processor block index -> new index (old blocks first at each schedule visit), and the added blocks."""
+    mapping: dict[int, int] = {}
+    added: list[int] = []
+    bo = bn = 0
+    for (_, n_old), (_, n_new) in zip(old.schedule, new.schedule, strict=True):
+        for i in range(n_new):
+            if i < n_old:
+                mapping[bo + i] = bn + i
+            else:
+                added.append(bn + i)
+        bo += n_old
+        bn += n_new
+    return mapping, added
+
+
+def grow(old: SMLN, new: SMLN) -> None:
+    """Load ``old`` into the deeper ``new`` in place so that ``new`` computes the same function (net2deeper).
+
+    Two kinds of growth (:func:`growth_error` says which configs qualify):
+
+    - more hidden layers per MLP (``mlp_hidden_layers`` n -> m): every encoder, processor and decoder MLP gets
+      m - n extra ``Linear(L, L)`` layers right before its output layer, set to the identity with zero bias. Each
+      follows a ReLU, so ``ReLU(I·relu(z)) = relu(z)``: the output is unchanged and training can move them.
+      The repulsion layer's MLP is not an SMLN MLP (fixed width and depth, paper §3.3) and is copied as is.
+    - more message-passing steps at a schedule visit: the old blocks run first, the added ones after them. An
+      added block's edge and node MLPs end in a LayerNorm whose scale and shift start at zero, so its residual
+      updates are zero (the block is the identity) while the scale still receives gradient.
+
+    Normaliser statistics, the repulsion layer and every other weight are copied.
+
+    Raises:
+        ValueError: if ``new``'s config is not a growth of ``old``'s.
+    """
+    oc, nc = old.config, new.config
+    why = growth_error(oc, nc)
+    if why is not None:
+        raise ValueError(f"cannot grow the model: {why}")
+    shift = 2 * (nc.mlp_hidden_layers - oc.mlp_hidden_layers)
+    n_old = oc.mlp_hidden_layers
+    blocks, added = _block_index_map(oc, nc)
+    with torch.no_grad():
+        for module in new.modules():  # the inserted hidden layers: identity
+            for seq, first in _deepened_sequentials(module, n_old):
+                for k in range(first, first + shift, 2):
+                    seq[k].weight.copy_(torch.eye(seq[k].weight.shape[0]))
+                    seq[k].bias.zero_()
+        for b in added:  # the added blocks: residual updates start at zero
+            blk = new.processor.blocks[b]
+            for norm in [blk.node_model[-1], *(em.tail[-1] for em in blk.edge_models.values())]:
+                norm.weight.zero_()
+                norm.bias.zero_()
+    state = new.state_dict()
+    for key, value in old.state_dict().items():
+        state[_grown_key(key, blocks, shift, n_old)] = value
+    new.load_state_dict(state, strict=True)
+
+
+def _deepened_sequentials(module: nn.Module, n_old: int) -> list[tuple[nn.Sequential, int]]:
+    """(sequential, index of its first inserted layer) for an SMLN MLP or an edge model's tail, else [].
+
+    With ``n_old`` hidden layers an MLP's output Linear sits at index 2·n_old (Linear, ReLU, ..., Linear) and a
+    tail's at 2·n_old - 1 (the tail starts with the ReLU after the split first layer); the inserted layers go there.
+    """
+    from smln.model.mlp import MLP
+    from smln.model.processor import EdgeModel
+
+    if isinstance(module, MLP):
+        return [(module, 2 * n_old)]
+    if isinstance(module, EdgeModel):
+        return [(module.tail, 2 * n_old - 1)]
+    return []
+
+
+def _grown_key(key: str, blocks: dict[int, int], shift: int, n_old: int) -> str:
+    """The state-dict key of ``key`` (an old model's) in the grown model."""
+    if m := _MLP_KEY.match(key):
+        k = int(m.group(2))
+        return f"{m.group(1)}.{k + shift if k >= 2 * n_old else k}.{m.group(3)}"
+    if m := _NODE_MLP_KEY.match(key):
+        k = int(m.group(4))
+        k = k + shift if k >= 2 * n_old else k
+        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}{k}.{m.group(5)}"
+    if m := _TAIL_KEY.match(key):
+        k = int(m.group(4))
+        k = k + shift if k >= 2 * n_old - 1 else k
+        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}{k}.{m.group(5)}"
+    if m := _BLOCK_KEY.match(key):
+        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}"
+    return key
