@@ -15,7 +15,7 @@ Prints JSON (and writes it with ``--json OUT``), including the 1-minute load ave
 machine is shared: compare medians taken at similar load).
 
     python bench/rollout_speed.py [--json OUT] [--repeats R] [--threads 1 2] [--synthetic]
-                                   [--precision float32 bfloat16] [--compile]
+                                   [--precision float32 bfloat16] [--compile] [--model-config TRAIN_CONFIG]
 
 With ``--precision bfloat16`` (default on CPUs with AMX / AVX512-BF16) the inference rows are repeated with the
 processor in bfloat16 (:mod:`smln.model.precision`) under ``inference_bfloat16``; with ``--compile`` once more per
@@ -207,10 +207,15 @@ def main() -> None:
     ap.add_argument("--compile", action="store_true",
                     help="also time every inference precision with the processor through torch.compile "
                          "(rows inference_compiled / inference_bfloat16_compiled; smln.model.compiled)")
+    ap.add_argument("--model-config", help="a `smln train --config` JSON file: time the architecture of its `model` "
+                                           "entry (e.g. docs/results/r29_mlp2_config.json) instead of the default")
     args = ap.parse_args()
     precisions = args.precision or (["float32", "bfloat16"] if native_bfloat16() else ["float32"])
     torch.manual_seed(0)
     cfg = SMLNConfig()
+    if args.model_config:
+        with open(args.model_config) as f:
+            cfg = SMLNConfig.from_dict({**cfg.to_dict(), **json.load(f).get("model", {})})
     frames = args.repeats + 4
     if args.synthetic:
         infer = [synthetic_scene(args.vertices, frames)]
