@@ -94,6 +94,9 @@ def _check_header(path: Path) -> None:
     """Refuse files that are not safetensors (pickles, torch zip archives) without parsing them."""
     with path.open("rb") as f:
         head = f.read(9)
+    header_len = int.from_bytes(head[:8], "little") if len(head) == 9 else -1
+    if head[8:9] == b"{" and 0 < header_len <= path.stat().st_size - 8:
+        return  # safetensors: an 8-byte little-endian header length, then the JSON header (its low byte may be 0x80)
     if head[:1] == b"\x80" or head[:2] == b"PK":
         kind = "a pickle" if head[:1] == b"\x80" else "a zip archive (torch.save)"
         raise CheckpointError(f"{path} is {kind}, not safetensors; refusing to load it (pickles can run code)")

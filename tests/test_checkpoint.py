@@ -57,6 +57,26 @@ def test_tampered_weights_rejected(tmp_path):
         load_checkpoint(tmp_path / "a")
 
 
+def test_safetensors_whose_header_length_starts_with_the_pickle_byte_loads(tmp_path):
+    """A safetensors file starts with its header length (8 bytes, little-endian); when its low byte is 0x80 the file
+    begins like a pickle. It must still load (session 22: a training snapshot was refused as "a pickle")."""
+    schedules = (((0, 1), (1, 1), (0, 1)), ((0, 1), (1, 2), (0, 1)), ((0, 2), (1, 1), (0, 1)))
+    for latent in range(8, 48):  # tensor shapes and offsets set the header length: search for a low byte of 0x80
+        for schedule in schedules:
+            m = SMLN(SMLNConfig(latent_size=latent, schedule=schedule))
+            save_checkpoint(tmp_path / "c", m)
+            head = (tmp_path / "c.safetensors").read_bytes()[:9]
+            if head[0] == 0x80:
+                break
+        if head[0] == 0x80:
+            break
+    assert head[0] == 0x80 and head[8:9] == b"{"
+    m2, _ = load_checkpoint(tmp_path / "c")
+    assert m2.config == m.config
+    for key, value in m.state_dict().items():
+        assert torch.equal(m2.state_dict()[key], value), key
+
+
 def test_pickle_renamed_rejected(tmp_path):
     save_checkpoint(tmp_path / "a", trained_like_model())
     p = tmp_path / "a.safetensors"
