@@ -27,7 +27,7 @@ from smln.checkpoint import load_checkpoint
 from smln.data_sampling import make_scene
 from smln.evaluate import skinning_frames
 from smln.geometry import set_threads
-from smln.motion.posing import body_speed  # noqa: F401 (re-exported for the tests)
+from smln.motion.posing import body_speed
 from smln.rollout import rollout
 
 

@@ -406,12 +406,12 @@ class Trainer:
         elif old_cfg == {**new_cfg, "body_normal_features": False}:
             # a checkpoint from before the body-normal edge features: widen it, same function
             widen_body_edges(model, self.model, self.body_normal_samples())
-        elif growth_error(model.config, self.model.config) is None:
+        elif (why := growth_error(model.config, self.model.config)) is None:
             # this run's model is deeper (more hidden layers, more steps per visit): grow it, same function
             grow(model, self.model)
         else:
             raise ValueError(f"{path}: architecture differs from this run's model config and is not a growth of it "
-                             f"({growth_error(model.config, self.model.config)})")
+                             f"({why})")
         self.ema.load_state_dict(self.model.state_dict())
         tr = card.get("training", {})
         self.step = int(tr.get("steps", 0))

@@ -61,15 +61,15 @@ def test_safetensors_whose_header_length_starts_with_the_pickle_byte_loads(tmp_p
     """A safetensors file starts with its header length (8 bytes, little-endian); when its low byte is 0x80 the file
     begins like a pickle. It must still load (session 22: a training snapshot was refused as "a pickle")."""
     schedules = (((0, 1), (1, 1), (0, 1)), ((0, 1), (1, 2), (0, 1)), ((0, 2), (1, 1), (0, 1)))
-    for latent in range(8, 48):  # tensor shapes and offsets set the header length: search for a low byte of 0x80
-        for schedule in schedules:
-            m = SMLN(SMLNConfig(latent_size=latent, schedule=schedule))
-            save_checkpoint(tmp_path / "c", m)
-            head = (tmp_path / "c.safetensors").read_bytes()[:9]
-            if head[0] == 0x80:
-                break
-        if head[0] == 0x80:
-            break
+
+    def saved_head(m: SMLN) -> bytes:
+        save_checkpoint(tmp_path / "c", m)
+        return (tmp_path / "c.safetensors").read_bytes()[:9]
+
+    # tensor shapes and offsets set the header length: search for a model whose low byte is 0x80
+    configs = (SMLNConfig(latent_size=latent, schedule=s) for latent in range(8, 48) for s in schedules)
+    m = next(m for m in map(SMLN, configs) if saved_head(m)[0] == 0x80)
+    head = (tmp_path / "c.safetensors").read_bytes()[:9]
     assert head[0] == 0x80 and head[8:9] == b"{"
     m2, _ = load_checkpoint(tmp_path / "c")
     assert m2.config == m.config

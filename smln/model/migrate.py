@@ -55,11 +55,9 @@ def widen_body_edges(old: SMLN, new: SMLN, new_columns: torch.Tensor) -> None:
 
 
 GROWABLE_FIELDS = ("mlp_hidden_layers", "schedule")
-_MLP_KEY = re.compile(r"^(node_encoder|mesh_encoder|virtual_encoder|body_encoder|decoder|coarse_encoders\.\d+)"
-                      r"\.(\d+)\.(weight|bias)$")
-_NODE_MLP_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\.node_model\.)(\d+)\.(weight|bias)$")
-_TAIL_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\.edge_models\.\w+\.tail\.)(\d+)\.(weight|bias)$")
-_BLOCK_KEY = re.compile(r"^(processor\.blocks\.)(\d+)(\..*)$")
+_BLOCK_KEY = re.compile(r"^processor\.blocks\.(\d+)\.")
+# a Linear/LayerNorm of an SMLN MLP (encoders, decoder, processor node MLPs) or of an edge model's tail
+_LAYER_KEY = re.compile(r"^(.*(?:encoder|encoders\.\d+|decoder|node_model|(?P<tail>tail)))\.(\d+)\.(weight|bias)$")
 
 
 def growth_error(old: SMLNConfig, new: SMLNConfig) -> str | None:
@@ -127,10 +125,12 @@ def grow(old: SMLN, new: SMLN) -> None:
     blocks, added = _block_index_map(oc, nc)
     with torch.no_grad():
         for module in new.modules():  # the inserted hidden layers: identity
-            for seq, first in _deepened_sequentials(module, n_old):
-                for k in range(first, first + shift, 2):
-                    seq[k].weight.copy_(torch.eye(seq[k].weight.shape[0]))
-                    seq[k].bias.zero_()
+            seq, first = _insertion_point(module, n_old)
+            if seq is None:
+                continue
+            for k in range(first, first + shift, 2):
+                seq[k].weight.copy_(torch.eye(seq[k].weight.shape[0]))
+                seq[k].bias.zero_()
         for b in added:  # the added blocks: residual updates start at zero
             blk = new.processor.blocks[b]
             for norm in [blk.node_model[-1], *(em.tail[-1] for em in blk.edge_models.values())]:
@@ -142,8 +142,8 @@ def grow(old: SMLN, new: SMLN) -> None:
     new.load_state_dict(state, strict=True)
 
 
-def _deepened_sequentials(module: nn.Module, n_old: int) -> list[tuple[nn.Sequential, int]]:
-    """(sequential, index of its first inserted layer) for an SMLN MLP or an edge model's tail, else [].
+def _insertion_point(module: nn.Module, n_old: int) -> tuple[nn.Sequential | None, int]:
+    """(sequential, index of its first inserted layer) for an SMLN MLP or an edge model's tail, else (None, 0).
 
     With ``n_old`` hidden layers an MLP's output Linear sits at index 2·n_old (Linear, ReLU, ..., Linear) and a
     tail's at 2·n_old - 1 (the tail starts with the ReLU after the split first layer); the inserted layers go there.
@@ -152,25 +152,18 @@ def _deepened_sequentials(module: nn.Module, n_old: int) -> list[tuple[nn.Sequen
     from smln.model.processor import EdgeModel
 
     if isinstance(module, MLP):
-        return [(module, 2 * n_old)]
+        return module, 2 * n_old
     if isinstance(module, EdgeModel):
-        return [(module.tail, 2 * n_old - 1)]
-    return []
+        return module.tail, 2 * n_old - 1
+    return None, 0
 
 
 def _grown_key(key: str, blocks: dict[int, int], shift: int, n_old: int) -> str:
-    """The state-dict key of ``key`` (an old model's) in the grown model."""
-    if m := _MLP_KEY.match(key):
-        k = int(m.group(2))
-        return f"{m.group(1)}.{k + shift if k >= 2 * n_old else k}.{m.group(3)}"
-    if m := _NODE_MLP_KEY.match(key):
-        k = int(m.group(4))
-        k = k + shift if k >= 2 * n_old else k
-        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}{k}.{m.group(5)}"
-    if m := _TAIL_KEY.match(key):
-        k = int(m.group(4))
-        k = k + shift if k >= 2 * n_old - 1 else k
-        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}{k}.{m.group(5)}"
-    if m := _BLOCK_KEY.match(key):
-        return f"{m.group(1)}{blocks[int(m.group(2))]}{m.group(3)}"
+    """The state-dict key of ``key`` (an old model's) in the grown model: processor blocks renumbered, layers at or
+    after the insertion point of their MLP (:func:`_insertion_point`) moved ``shift`` places on."""
+    key = _BLOCK_KEY.sub(lambda m: f"processor.blocks.{blocks[int(m.group(1))]}.", key)
+    if m := _LAYER_KEY.match(key):
+        k = int(m.group(3))
+        first = 2 * n_old - 1 if m.group("tail") else 2 * n_old
+        return f"{m.group(1)}.{k + shift if k >= first else k}.{m.group(4)}"
     return key
