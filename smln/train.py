@@ -660,7 +660,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--variant", choices=list(VARIANTS))
     p.add_argument("--out", required=True, help="run directory (log.csv, loss.png, train_state.pt, best/, last/)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/train_state.pt")
-    p.add_argument("--minutes", type=float, help="wall-clock budget; the run ends cleanly after it")
+    p.add_argument("--minutes", type=float,
+                   help="wall-clock budget of the whole run; it ends cleanly after it (a --resume'd run counts the "
+                        "time it has already spent: to go on for 60 more minutes, add 60 to its last budget)")
     p.add_argument("--max-steps", type=int)
     p.add_argument("--seed", type=int)
     p.add_argument("--lr", type=float)

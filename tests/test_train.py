@@ -69,6 +69,18 @@ def test_resume_continues_bit_for_bit(tmp_path):
 
 
 @pytest.mark.slow
+def test_minutes_is_the_whole_runs_budget_across_resumes(tmp_path):
+    """``--minutes`` bounds the run's total wall time: a resumed run that has spent it takes no step."""
+    first = train(["--out", str(tmp_path / "b"), "--max-steps", "3", "--outfits", _outfit(), *TINY])
+    spent_minutes = first.wall / 60.0
+    assert spent_minutes > 0
+    spent = train(["--out", str(tmp_path / "b"), "--max-steps", "6", "--resume", "--minutes", str(spent_minutes / 2)])
+    assert spent.step == first.step
+    more = train(["--out", str(tmp_path / "b"), "--max-steps", "6", "--resume", "--minutes", str(spent_minutes + 30)])
+    assert more.step >= 6
+
+
+@pytest.mark.slow
 def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
     script = tmp_path / "ddp_check.py"
     script.write_text(
