@@ -769,9 +769,24 @@ def train(argv: list[str] | None = None) -> Trainer:
     return trainer
 
 
+def close_distributed() -> None:
+    """Tear down the process group a distributed run opened (no-op otherwise). Without it a gloo rank can abort at
+    interpreter exit ("terminate called without an active exception") after its work is done."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()
+
+
 def cli_main(args: argparse.Namespace) -> None:
-    train(args.argv)
+    try:
+        train(args.argv)
+    finally:
+        close_distributed()
 
 
 if __name__ == "__main__":
-    train()
+    try:
+        train()
+    finally:
+        close_distributed()

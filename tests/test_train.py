@@ -93,6 +93,9 @@ def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
         "assert all(torch.equal(gathered[0], g) for g in gathered), 'ranks diverged'\n"
         "assert t.step >= 3\n"
         "print('DDP-OK', dist.get_rank(), t.step)\n"
+        "from smln.train import close_distributed\n"
+        "close_distributed()\n"
+        "assert not dist.is_initialized()\n"
     )
     env = dict(os.environ, OMP_NUM_THREADS="1")
     # --standalone: torchrun's own rendezvous on a free local port (no port picked here and raced for)
