@@ -92,13 +92,16 @@ class SceneCache:
 
     The outfit parts (cloth, rest state, graph topology) are cached per (outfit, shape) without limit (a few dozen
     small objects); posed body sequences per (shape, clip) in a bounded LRU (tens of MB each). Assembling a scene
-    from cached parts costs one skinning of the garments along the clip.
+    from cached parts costs one skinning of the garments along the clip. Every tensor of a scene (cloth, rest
+    state, topology, body, skinned garments) lives on ``device`` (a GPU run keeps them there for the whole run).
     """
 
-    def __init__(self, model=None, edge_length: float = 0.035, capacity: int = 48) -> None:
+    def __init__(self, model=None, edge_length: float = 0.035, capacity: int = 48,
+                 device: torch.device | str = "cpu") -> None:
         self.model = model
         self.edge_length = edge_length
         self.capacity = capacity
+        self.device = torch.device(device)
         self._outfits: dict[tuple[str, str], tuple[Cloth, ClothRest, object | None]] = {}
         self._bodies: OrderedDict[tuple[str, str], BodySequence] = OrderedDict()
 
@@ -106,8 +109,10 @@ class SceneCache:
         key = (outfit, shape)
         if key not in self._outfits:
             cloth = build_cloth(outfit, shape, self.edge_length)
+            rest = ClothRest.from_cloth(cloth).to(self.device)  # computed on the CPU: the same numbers everywhere
+            cloth = cloth.to(self.device)
             topo = self.model.make_topology(cloth) if self.model is not None else None
-            self._outfits[key] = (cloth, ClothRest.from_cloth(cloth), topo)
+            self._outfits[key] = (cloth, rest, topo)
         return self._outfits[key]
 
     def body(self, shape: str, motion: str) -> BodySequence:
@@ -115,7 +120,7 @@ class SceneCache:
         if key in self._bodies:
             self._bodies.move_to_end(key)
             return self._bodies[key]
-        seq = load_body_sequence(motion, load_body(shape))
+        seq = load_body_sequence(motion, load_body(shape)).to(self.device)
         self._bodies[key] = seq
         while len(self._bodies) > self.capacity:
             self._bodies.popitem(last=False)

@@ -148,6 +148,24 @@ def _init_distributed(device: torch.device) -> bool:
     return True
 
 
+def resolve_device(device: str | torch.device) -> torch.device:
+    """The device this process trains on. ``"cuda"`` without an index means, under ``torchrun``, the GPU of this
+    process's ``LOCAL_RANK`` (one GPU per process, as nccl needs), else GPU 0; it is also made the current GPU.
+
+    Raises:
+        RuntimeError: a CUDA device is asked for and PyTorch sees none.
+    """
+    dev = torch.device(device)
+    if dev.type != "cuda":
+        return dev
+    if not torch.cuda.is_available():
+        raise RuntimeError(f"--device {device}: PyTorch sees no CUDA device (torch {torch.__version__})")
+    if dev.index is None:
+        dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+    torch.cuda.set_device(dev)
+    return dev
+
+
 # ------------------------------------------------------------------------------------------------- sampling
 
 
@@ -250,7 +268,7 @@ class Trainer:
                              f"{', '.join(SKIN_GUARDS)}")
         self.cfg = cfg
         self.out = Path(out_dir)
-        self.device = torch.device(device)
+        self.device = resolve_device(device)
         self.distributed = _init_distributed(self.device)
         self.rank, self.world = _dist_info()
         torch.manual_seed(cfg.seed)
@@ -263,7 +281,8 @@ class Trainer:
         if self.distributed:
             from torch.nn.parallel import DistributedDataParallel
 
-            self.net = DistributedDataParallel(self.net, find_unused_parameters=True)
+            ids = [self.device.index] if self.device.type == "cuda" else None
+            self.net = DistributedDataParallel(self.net, device_ids=ids, find_unused_parameters=True)
         # foreach: one fused kernel per step over all parameter tensors instead of a Python loop over them (CPU too)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, foreach=True)
         # exponential moving average of the weights (decay 0.999: ~1k-step horizon); validation and the saved
@@ -275,7 +294,7 @@ class Trainer:
         self.cache_tensor_lists()
         self.sampler = EpisodeSampler(cfg, cfg.seed * 1000 + self.rank)
         self.noise = torch.Generator().manual_seed(cfg.seed * 1000 + self.rank + 1)
-        self.cache = SceneCache(self.model, edge_length=cfg.edge_length)
+        self.cache = SceneCache(self.model, edge_length=cfg.edge_length, device=self.device)
         self.weights = cfg.weights()
         self.step = 0
         self.wall = 0.0
@@ -319,14 +338,15 @@ class Trainer:
         normals, drawn after the first: e.g. 1.5 mm isotropic + 2.5 mm normal keeps some tangential noise (which
         helps sliding layer contact) at a smaller stretch cost."""
         sigma, sigma_normal = self.cfg.noise_std, self.cfg.noise_normal_std
+        dev = x_cur.device  # the draws come from the CPU generator (the same numbers on any device), then move
         eps = torch.zeros_like(x_cur)
         if sigma > 0 and self.cfg.noise_mode == "normal":
-            amount = torch.randn((x_cur.shape[0], 1), generator=self.noise) * sigma
+            amount = (torch.randn((x_cur.shape[0], 1), generator=self.noise) * sigma).to(dev)
             eps = vertex_normals(x_cur, scene.cloth.faces) * amount
         elif sigma > 0:
-            eps = torch.randn(x_cur.shape, generator=self.noise) * sigma
+            eps = (torch.randn(x_cur.shape, generator=self.noise) * sigma).to(dev)
         if sigma_normal > 0:  # ``noise_normal_std``: a second, normal-only offset on top (mixed noise)
-            amount = torch.randn((x_cur.shape[0], 1), generator=self.noise) * sigma_normal
+            amount = (torch.randn((x_cur.shape[0], 1), generator=self.noise) * sigma_normal).to(dev)
             eps = eps + vertex_normals(x_cur, scene.cloth.faces) * amount
         eps[scene.cloth.pinned] = 0
         return eps
@@ -344,7 +364,7 @@ class Trainer:
             return value
         import torch.distributed as dist
 
-        t = torch.tensor([value], dtype=torch.float64)
+        t = torch.tensor([value], dtype=torch.float64, device=self.device)  # nccl reduces GPU tensors only
         dist.all_reduce(t, op=dist.ReduceOp.MIN if op == "min" else dist.ReduceOp.MAX)
         return float(t.item())
 
@@ -400,6 +420,7 @@ class Trainer:
         from smln.model.migrate import grow, growth_error, widen_body_edges
 
         model, card = load_checkpoint(path)
+        model = model.to(self.device)
         old_cfg, new_cfg = model.config.to_dict(), self.model.config.to_dict()
         if old_cfg == new_cfg:
             self.model.load_state_dict(model.state_dict())
@@ -454,7 +475,7 @@ class Trainer:
         try:
             with torch.no_grad():
                 for fr in rollout(model, scene.cloth, seq, scene.body.faces, num_frames=frames, fallback=True,
-                                  skin_guard=c.validation_skin_guard):
+                                  skin_guard=c.validation_skin_guard, device=self.device):
                     metrics.append(fr.metrics)
                     if fr.fallback:
                         exploded = 1.0
@@ -689,7 +710,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--compile", action="store_true", default=None,
                    help="run the processor through torch.compile, forward and backward (13-18 %% faster steps on "
                         "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
-    p.add_argument("--device", default="cpu")
+    p.add_argument("--device", default="cpu",
+                   help="cpu, cuda or cuda:N (under torchrun, cuda means each process's LOCAL_RANK GPU, with nccl)")
     p.add_argument("--outfits", nargs="+")
     p.add_argument("--motions", nargs="+")
     p.add_argument("--shapes", nargs="+")

@@ -40,6 +40,14 @@ class BodySequence:
         return BodySequence(self.vertices[start:stop], self.faces, self.transforms[start:stop], self.fps,
                             self.name, self.shape)
 
+    def to(self, device: torch.device | str) -> BodySequence:
+        """The sequence with its tensors on ``device`` (itself when they already are)."""
+        dev = torch.device(device)
+        if self.vertices.device == dev:
+            return self
+        return BodySequence(self.vertices.to(dev), self.faces.to(dev), self.transforms.to(dev), self.fps, self.name,
+                            self.shape)
+
 
 def body_speed(vertices: torch.Tensor | np.ndarray) -> np.ndarray:
     """(T,) float64 mean vertex displacement from frame t-1 to t of a (T, Vb, 3) body sequence, m/frame (0 at t = 0).
@@ -48,7 +56,7 @@ def body_speed(vertices: torch.Tensor | np.ndarray) -> np.ndarray:
     (:class:`smln.train.EpisodeSampler`) and ``bench/hcoll_speed.py``."""
     b = torch.as_tensor(vertices)  # its own float precision (float32 bodies: no float64 copy of a whole clip)
     speed = np.zeros(b.shape[0])
-    speed[1:] = (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).double().numpy()
+    speed[1:] = (b[1:] - b[:-1]).norm(dim=-1).mean(dim=-1).double().cpu().numpy()
     return speed
 
 
