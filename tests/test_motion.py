@@ -241,3 +241,38 @@ def test_preroll_goes_from_the_t_pose_to_the_clip_frame_with_rigid_bones(body, w
     assert torch.allclose(lengths, lengths[:1].expand_as(lengths), atol=1e-5)
     with pytest.raises(ValueError):
         preroll_sequence(body, walk_sequence, num_frames=0)
+
+
+def test_a_shipped_clip_is_unpacked_once_byte_for_byte_into_the_cache(tmp_path, monkeypatch):
+    import gzip
+    import os
+
+    from smln.motion.library import MOTION_DIR
+
+    monkeypatch.setenv("SMLN_CACHE_DIR", str(tmp_path / "cache"))
+    gz = MOTION_DIR / "02_01_walk.bvh.gz"
+    path = clip_path("02_01_walk")
+    assert path.name == "02_01_walk.bvh" and (tmp_path / "cache" / "motions") in path.parents
+    assert path.read_bytes() == gzip.open(gz).read()
+    assert path.read_text().startswith("HIERARCHY")
+    os.utime(path, (1, 1))  # a second use reads the unpacked file, it does not write it again
+    assert clip_path("02_01_walk") == path and path.stat().st_mtime == 1
+
+
+def test_a_damaged_packed_clip_or_an_unwritable_cache_is_handled(tmp_path, monkeypatch):
+    from smln.motion.library import unpacked_clip
+
+    bad = tmp_path / "bad.bvh.gz"
+    bad.write_bytes(b"not gzip at all")
+    monkeypatch.setenv("SMLN_CACHE_DIR", str(tmp_path / "cache"))
+    with pytest.raises(MotionError, match="bad.bvh.gz: cannot unpack"):
+        unpacked_clip(bad)
+    with pytest.raises(MotionError, match="no such file"):
+        unpacked_clip(tmp_path / "missing.bvh.gz")
+    blocker = tmp_path / "file_not_dir"
+    blocker.write_text("x")  # the cache root is a file: nothing can be made under it
+    monkeypatch.setenv("SMLN_CACHE_DIR", str(blocker))
+    from smln.motion.library import MOTION_DIR
+
+    path = unpacked_clip(MOTION_DIR / "02_03_run_jog.bvh.gz")
+    assert path.is_file() and blocker not in path.parents and path.read_text().startswith("HIERARCHY")

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import gzip
+import hashlib
 import json
+import os
+import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -36,12 +40,55 @@ def clip_split(name: str) -> str:
 
 
 def clip_path(name: str) -> Path:
-    """Path of a shipped clip by name, or of a user's .bvh file given as a path."""
+    """Path of a shipped clip by name (a plain .bvh file), or of a user's .bvh file given as a path.
+
+    The shipped clips are stored gzip-compressed (``MOTION_DIR/NAME.bvh.gz``, a third of the size); the first use
+    of one unpacks it into the cache (:func:`unpacked_clip`).
+    """
     p = Path(name)
     if p.suffix.lower() == ".bvh":
         return p
     clip_split(name)
-    return MOTION_DIR / f"{name}.bvh"
+    plain = MOTION_DIR / f"{name}.bvh"
+    return plain if plain.is_file() else unpacked_clip(MOTION_DIR / f"{name}.bvh.gz")
+
+
+def motion_cache_dir() -> Path:
+    """Directory of unpacked shipped clips (``$SMLN_CACHE_DIR/motions`` or ``~/.cache/smln/motions``)."""
+    root = os.environ.get("SMLN_CACHE_DIR")
+    return (Path(root) if root else Path.home() / ".cache" / "smln") / "motions"
+
+
+def unpacked_clip(gz_path: Path) -> Path:
+    """The plain BVH of a gzip-compressed clip, unpacked once into :func:`motion_cache_dir` under a hash of the
+    compressed bytes (an edited clip gets a fresh copy; a half-written one is never seen: written aside, then
+    renamed). Falls back to a temporary directory when the cache is not writable.
+
+    Raises:
+        MotionError: the compressed file is missing or not gzip.
+    """
+    if not gz_path.is_file():
+        raise MotionError(f"{gz_path.name}: no such file")
+    packed = gz_path.read_bytes()
+    name = gz_path.name.removesuffix(".gz")
+    digest = hashlib.sha256(packed).hexdigest()[:12]
+    for root in (motion_cache_dir(), Path(tempfile.gettempdir()) / "smln-motions"):
+        target = root / digest / name
+        if target.is_file():
+            return target
+        try:
+            text = gzip.decompress(packed)
+        except (OSError, EOFError) as exc:
+            raise MotionError(f"{gz_path.name}: cannot unpack ({exc})") from None
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_bytes(text)
+            tmp.replace(target)
+            return target
+        except OSError:
+            continue
+    raise MotionError(f"{gz_path.name}: no writable directory to unpack it into")
 
 
 def load_motion(name_or_path: str | Path, body: Body) -> Motion:
