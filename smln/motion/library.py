@@ -49,8 +49,8 @@ def clip_path(name: str) -> Path:
     if p.suffix.lower() == ".bvh":
         return p
     clip_split(name)
-    plain = MOTION_DIR / f"{name}.bvh"
-    return plain if plain.is_file() else unpacked_clip(MOTION_DIR / f"{name}.bvh.gz")
+    packed = MOTION_DIR / f"{name}.bvh.gz"
+    return unpacked_clip(packed) if packed.is_file() else MOTION_DIR / f"{name}.bvh"
 
 
 def motion_cache_dir() -> Path:
