@@ -37,7 +37,7 @@ def test_asking_for_cuda_without_a_gpu_says_so():
 def test_scene_cache_puts_every_tensor_of_a_scene_on_its_device():
     from smln.data_sampling import SceneCache
 
-    scene = SceneCache(edge_length=0.05, device="cpu").get(_outfit(), "female_average", "02_01_walk", window=(0, 4))
+    scene = SceneCache(edge_length=0.035, device="cpu").get(_outfit(), "female_average", "02_01_walk", window=(0, 4))
     seq = scene.body
     assert seq.to("cpu") is seq  # same device: no copy
     tensors = [scene.skinned, seq.vertices, seq.faces, seq.transforms, scene.cloth.rest_vertices, scene.rest.mass]
