@@ -137,14 +137,23 @@ def _dist_info() -> tuple[int, int]:
     return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
 
 
-def _init_distributed(device: torch.device) -> bool:
+DIST_BACKENDS = ("auto", "nccl", "gloo")
+"""``auto``: nccl on GPUs, gloo on CPUs. ``gloo`` on GPUs lets several processes share one GPU (nccl needs one GPU
+per process): each process does its own CPU-side work (KD-tree queries, graph building) on its own core."""
+
+
+def _init_distributed(device: torch.device, backend: str = "auto") -> bool:
     rank, world = _dist_info()
     if world <= 1:
         return False
+    if backend not in DIST_BACKENDS:
+        raise ValueError(f"unknown distributed backend {backend!r}; choose one of {', '.join(DIST_BACKENDS)}")
     import torch.distributed as dist
 
     if not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        if backend == "auto":
+            backend = "nccl" if device.type == "cuda" else "gloo"
+        dist.init_process_group(backend)
     return True
 
 
@@ -248,7 +257,7 @@ class EpisodeSampler:
 class Trainer:
     """Owns the model, optimiser, sampler, logs and checkpoints of one run."""
 
-    def __init__(self, cfg: TrainConfig, out_dir: Path, device: str = "cpu") -> None:
+    def __init__(self, cfg: TrainConfig, out_dir: Path, device: str = "cpu", dist_backend: str = "auto") -> None:
         if cfg.variant not in VARIANTS:
             raise ValueError(f"unknown variant {cfg.variant!r}; choose one of {', '.join(VARIANTS)}")
         if cfg.noise_mode not in NOISE_MODES:
@@ -269,7 +278,7 @@ class Trainer:
         self.cfg = cfg
         self.out = Path(out_dir)
         self.device = resolve_device(device)
-        self.distributed = _init_distributed(self.device)
+        self.distributed = _init_distributed(self.device, dist_backend)
         self.rank, self.world = _dist_info()
         torch.manual_seed(cfg.seed)
         self.model = SMLN(cfg.model_config()).to(self.device)
@@ -712,6 +721,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                         "CPU after a one-off compilation of ~2 minutes; eager if compilation fails)")
     p.add_argument("--device", default="cpu",
                    help="cpu, cuda or cuda:N (under torchrun, cuda means each process's LOCAL_RANK GPU, with nccl)")
+    p.add_argument("--dist-backend", choices=DIST_BACKENDS, default="auto",
+                   help="under torchrun: auto (nccl on GPUs, gloo on CPUs); gloo with --device cuda:0 lets several "
+                        "processes share one GPU")
     p.add_argument("--outfits", nargs="+")
     p.add_argument("--motions", nargs="+")
     p.add_argument("--shapes", nargs="+")
@@ -776,7 +788,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
 def train(argv: list[str] | None = None) -> Trainer:
     cfg, args = parse_args(argv)
     set_threads(cfg.threads)
-    trainer = Trainer(cfg, Path(args.out), device=args.device)
+    trainer = Trainer(cfg, Path(args.out), device=args.device, dist_backend=args.dist_backend)
     if args.resume:
         if not trainer.state_path().exists():
             raise FileNotFoundError(f"nothing to resume: {trainer.state_path()} does not exist")

@@ -96,12 +96,40 @@ def test_rollout_on_the_gpu_matches_the_cpu():
     assert np.abs(runs["cuda"] - runs["cpu"]).max() < 2e-3  # m, after 10 autoregressive steps in float32
 
 
+DDP_CHECK = (
+    "import sys, torch, torch.distributed as dist\n"
+    "from smln.train import close_distributed, train\n"
+    "t = train(sys.argv[1:])\n"
+    "flat = torch.cat([p.detach().flatten() for p in t.model.parameters()])\n"
+    "flat = flat.cpu() if dist.get_backend() == 'gloo' else flat\n"
+    "gathered = [torch.zeros_like(flat) for _ in range(dist.get_world_size())]\n"
+    "dist.all_gather(gathered, flat)\n"
+    "assert all(torch.equal(gathered[0], g) for g in gathered), 'ranks diverged'\n"
+    "assert t.device.type == 'cuda' and t.step >= 3\n"
+    "print('DDP-OK', dist.get_rank(), t.device, t.step)\n"
+    "close_distributed()\n"
+)
+
+
+def _torchrun(tmp_path: Path, device: str, backend: str) -> None:
+    script = tmp_path / "ddp_check.py"
+    script.write_text(DDP_CHECK)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(script),
+           "--out", str(tmp_path / "run"), "--device", device, "--dist-backend", backend, "--max-steps", "3",
+           "--outfits", _outfit(), *TINY]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600, cwd=Path(__file__).parents[1])
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+    assert done.stdout.count("DDP-OK") == 2
+    assert (tmp_path / "run" / "last.safetensors").exists()
+
+
+@needs_cuda
+def test_two_processes_share_one_gpu_with_gloo(tmp_path):
+    _torchrun(tmp_path, "cuda:0", "gloo")
+
+
 @needs_cuda
 @pytest.mark.skipif(torch.cuda.device_count() < 2, reason="nccl needs one GPU per process")
 def test_torchrun_with_nccl_on_two_gpus(tmp_path):
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", "-m", "smln.train", "--out",
-           str(tmp_path / "run"), "--device", "cuda", "--max-steps", "3", "--outfits", _outfit(), *TINY]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert (tmp_path / "run" / "last.safetensors").exists()
+    _torchrun(tmp_path, "cuda", "auto")
