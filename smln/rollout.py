@@ -190,7 +190,8 @@ def rollout(
     cloth_d = cloth.to(dev)
     topology = model.make_topology(cloth_d)
     rest = ClothRest.from_cloth(cloth)
-    faces_np = np.asarray(body_faces, dtype=np.int64)
+    faces_np = (body_faces.detach().cpu().numpy() if isinstance(body_faces, torch.Tensor)
+                else np.asarray(body_faces)).astype(np.int64)  # a GPU run passes the faces on the GPU
     projecting = project_body or project_layers
     rest_d = rest.to(dev) if projecting else rest
     faces_d = torch.as_tensor(faces_np, device=dev)

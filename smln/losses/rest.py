@@ -126,7 +126,7 @@ class ClothRest:
         k_b = cloth.material.bending_stiffness
         bend_coeff = k_b * hl**2 / (4.0 * a_sum)
         if flat_rest_bending:
-            rest_angle = torch.zeros(len(hl))
+            rest_angle = torch.zeros(len(hl), device=x.device)
         else:
             rest_angle = dihedral_angles(x.double(), ie.edges, ie.opposite).float()
         pinned = cloth.pinned.bool()
