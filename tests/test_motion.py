@@ -260,7 +260,7 @@ def test_a_shipped_clip_is_unpacked_once_byte_for_byte_into_the_cache(tmp_path, 
 
 
 def test_a_damaged_packed_clip_or_an_unwritable_cache_is_handled(tmp_path, monkeypatch):
-    from smln.motion.library import unpacked_clip
+    from smln.motion.library import MOTION_DIR, unpacked_clip
 
     bad = tmp_path / "bad.bvh.gz"
     bad.write_bytes(b"not gzip at all")
@@ -269,10 +269,13 @@ def test_a_damaged_packed_clip_or_an_unwritable_cache_is_handled(tmp_path, monke
         unpacked_clip(bad)
     with pytest.raises(MotionError, match="no such file"):
         unpacked_clip(tmp_path / "missing.bvh.gz")
+    packed = (MOTION_DIR / "02_01_walk.bvh.gz").read_bytes()
+    broken = tmp_path / "broken.bvh.gz"  # a gzip header, then damaged deflate data
+    broken.write_bytes(packed[:20] + bytes(b ^ 0x5A for b in packed[20:400]) + packed[400:])
+    with pytest.raises(MotionError, match="broken.bvh.gz: cannot unpack"):
+        unpacked_clip(broken)
     blocker = tmp_path / "file_not_dir"
     blocker.write_text("x")  # the cache root is a file: nothing can be made under it
     monkeypatch.setenv("SMLN_CACHE_DIR", str(blocker))
-    from smln.motion.library import MOTION_DIR
-
     path = unpacked_clip(MOTION_DIR / "02_03_run_jog.bvh.gz")
     assert path.is_file() and blocker not in path.parents and path.read_text().startswith("HIERARCHY")

@@ -7,6 +7,7 @@ import hashlib
 import json
 import os
 import tempfile
+import zlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -78,7 +79,7 @@ def unpacked_clip(gz_path: Path) -> Path:
             return target
         try:
             text = gzip.decompress(packed)
-        except (OSError, EOFError) as exc:
+        except (OSError, EOFError, zlib.error) as exc:
             raise MotionError(f"{gz_path.name}: cannot unpack ({exc})") from None
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
