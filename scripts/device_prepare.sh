@@ -34,4 +34,5 @@ for edge in (0.035, 0.02):  # the rollout checks and bench/device_speed.py
     built += 1
 print(f"garment cache: {built} outfits in .devcache")
 PY
+rm -rf .devcache/motions  # unpacked clips (22 MB): the GPU machine unpacks its own from the .bvh.gz files
 du -sh .whl .devcache
