@@ -28,7 +28,7 @@ from smln.body import lbs
 from smln.cloth import Cloth
 from smln.geometry import PointTree, build_tree, vertex_normals
 from smln.losses.rest import ClothRest
-from smln.metrics import frame_metrics
+from smln.metrics import _np_index, frame_metrics
 from smln.model.compiled import with_compiled_processor
 from smln.model.precision import with_processor_dtype
 from smln.model.smln import SMLN
@@ -190,8 +190,7 @@ def rollout(
     cloth_d = cloth.to(dev)
     topology = model.make_topology(cloth_d)
     rest = ClothRest.from_cloth(cloth)
-    faces_np = (body_faces.detach().cpu().numpy() if isinstance(body_faces, torch.Tensor)
-                else np.asarray(body_faces)).astype(np.int64)  # a GPU run passes the faces on the GPU
+    faces_np = _np_index(body_faces)  # a GPU run passes the faces on the GPU
     projecting = project_body or project_layers
     rest_d = rest.to(dev) if projecting else rest
     faces_d = torch.as_tensor(faces_np, device=dev)
