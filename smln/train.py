@@ -95,6 +95,7 @@ class TrainConfig:
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
     layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
     model: dict[str, Any] = field(default_factory=dict)
+    body_push_init: float = 1.0  # an --init-from run that adds the body repulsion stage starts it at this push
 
     def weights(self) -> LossWeights:
         """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline`` (the
@@ -422,11 +423,13 @@ class Trainer:
     def init_from(self, path: str) -> None:
         """Start from a checkpoint's weights (and its step count, so the lr and rollout-length schedules go on
         from there); the optimiser starts fresh. The checkpoint's architecture must match this run's, lack only the
-        body-normal edge columns (:func:`~smln.model.migrate.widen_body_edges`), or be a shallower version of it
+        body-normal edge columns (:func:`~smln.model.migrate.widen_body_edges`), be a shallower version of it
         (:func:`~smln.model.migrate.grow`: more hidden layers per MLP or more steps per schedule visit in the run's
-        ``model`` config); the last two start from the checkpoint's function exactly."""
+        ``model`` config), or lack only the body stage of the repulsion layer
+        (:func:`~smln.model.migrate.add_body_repulsion`); the first two start from the checkpoint's function
+        exactly, the last one with the new stage acting as a collision projection."""
         from smln.checkpoint import load_checkpoint
-        from smln.model.migrate import grow, growth_error, widen_body_edges
+        from smln.model.migrate import add_body_repulsion, grow, growth_error, widen_body_edges
 
         model, card = load_checkpoint(path)
         model = model.to(self.device)
@@ -436,6 +439,10 @@ class Trainer:
         elif old_cfg == {**new_cfg, "body_normal_features": False}:
             # a checkpoint from before the body-normal edge features: widen it, same function
             widen_body_edges(model, self.model, self.body_normal_samples())
+        elif new_cfg["body_repulsion"] and old_cfg == {
+                **new_cfg, "body_repulsion": False, "body_repulsion_threshold": old_cfg["body_repulsion_threshold"]}:
+            # the run adds the body stage of the repulsion layer: everything else as trained, the stage new
+            add_body_repulsion(model, self.model, self.cfg.body_push_init)
         elif (why := growth_error(model.config, self.model.config)) is None:
             # this run's model is deeper (more hidden layers, more steps per visit): grow it, same function
             grow(model, self.model)
@@ -758,6 +765,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--repulsion-eps", type=float,
                    help="clearance ε between adjacent layers in the repulsion loss (and the layer friction's contact "
                         "push), m (default smln.losses.repulsion.REPULSION_EPS, 3e-3; ignored by baseline)")
+    p.add_argument("--body-push-init", type=float,
+                   help="with --init-from a checkpoint without the body stage of the repulsion layer and a model "
+                        "config with body_repulsion: the stage starts pushing this fraction of the way to its "
+                        "threshold (default 1 = a collision projection; smln.model.migrate.add_body_repulsion)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -779,7 +790,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("start_sampling", "start_sampling"), ("speed_mix", "speed_mix"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),
-                      ("validation_skin_guard", "validation_skin_guard")):
+                      ("validation_skin_guard", "validation_skin_guard"), ("body_push_init", "body_push_init")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

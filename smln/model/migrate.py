@@ -54,6 +54,30 @@ def widen_body_edges(old: SMLN, new: SMLN, new_columns: torch.Tensor) -> None:
     new.load_state_dict(state, strict=True)
 
 
+def add_body_repulsion(old: SMLN, new: SMLN, push_fraction: float = 1.0) -> None:
+    """Load ``old`` (no body stage) into ``new`` (the same config plus ``body_repulsion=True``) in place.
+
+    Every weight is copied; the new body stage starts as :meth:`RepulsionLayer.init_as_projection` with
+    ``push_fraction``: at the start of fine-tuning it pushes every garment vertex closer to the body than its
+    threshold (not deeper than 2 cm) that fraction of the way onto the threshold (1: like the collision
+    projection), and training shapes it.
+
+    Raises:
+        ValueError: if the configs differ in anything else.
+    """
+    oc, nc = old.config.to_dict(), new.config.to_dict()
+    if oc.pop("body_repulsion") or not nc.pop("body_repulsion"):
+        raise ValueError("add_body_repulsion needs a model without the body stage and one with it")
+    oc.pop("body_repulsion_threshold")
+    nc.pop("body_repulsion_threshold")
+    if oc != nc:
+        raise ValueError(f"configs differ in more than the body stage: {sorted(k for k in oc if oc[k] != nc[k])}")
+    new.body_repulsion.init_as_projection(push_fraction)
+    state = new.state_dict()
+    state.update(old.state_dict())
+    new.load_state_dict(state, strict=True)
+
+
 GROWABLE_FIELDS = ("mlp_hidden_layers", "schedule")
 _BLOCK_KEY = re.compile(r"^processor\.blocks\.(\d+)\.")
 # a Linear/LayerNorm of an SMLN MLP (encoders, decoder, processor node MLPs) or of an edge model's tail

@@ -27,6 +27,10 @@ from smln.model.normalizer import Normalizer
 from smln.model.processor import Processor
 from smln.model.repulsion import RepulsionLayer
 
+BODY_REPULSION_MAX_DEPTH = 0.02
+"""The body stage of the repulsion layer leaves garment vertices deeper than this behind their nearest body vertex's
+normal plane alone, m (:data:`smln.projection.BODY_MAX_DEPTH`: deeper, the nearest-vertex test is mostly wrong)."""
+
 
 @dataclass
 class SMLNConfig:
@@ -67,6 +71,14 @@ class SMLNConfig:
             load with False (:data:`smln.checkpoint.LEGACY_CONFIG`).
         virtual_radius: inter-layer virtual edge radius, m.
         use_repulsion_layer: add the repulsion layer's acceleration ``a`` (Eq. 14-16).
+        body_repulsion: the repulsion layer also gets a stage between the body and the garments, run before the
+            layer pairs (an extension of the paper, whose layer acts between garment layers only): every garment
+            vertex with a body world edge is an outer vertex and its nearest body vertex (at t+1, with the body's
+            vertex normal) the inner one, with its own MLP (same form, Eq. 14-15) and
+            ``body_repulsion_threshold``; pairs deeper than :data:`BODY_REPULSION_MAX_DEPTH` are left alone.
+            Needs ``use_repulsion_layer`` and ``body_normal_features``. Cards written before this field existed
+            load with False.
+        body_repulsion_threshold: the body stage's activation distance along the body normal, m.
         repulsion_threshold: repulsion activation distance along the inner normal, m.
         repulsion_hidden: repulsion MLP width (paper: 32).
         output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
@@ -89,6 +101,8 @@ class SMLNConfig:
     use_repulsion_layer: bool = True
     repulsion_threshold: float = 0.005
     repulsion_hidden: int = 32
+    body_repulsion: bool = False
+    body_repulsion_threshold: float = 0.003
     output_scale: float = GRAVITY * DT * DT
     normalizer_accumulations: int = 200
     dt: float = DT
@@ -103,6 +117,10 @@ class SMLNConfig:
                 raise ValueError(f"schedule levels must change by exactly one, got {a} -> {b}")
         if max(lv for lv, _ in self.schedule) > self.levels:
             raise ValueError("schedule visits a level above `levels`")
+        if self.body_repulsion and not (self.use_repulsion_layer and self.body_normal_features):
+            raise ValueError("body_repulsion needs use_repulsion_layer and body_normal_features")
+        if not self.body_repulsion_threshold > 0:
+            raise ValueError(f"body_repulsion_threshold must be > 0 m, got {self.body_repulsion_threshold}")
 
     @property
     def body_edge_dim(self) -> int:
@@ -153,6 +171,10 @@ class SMLN(nn.Module):
             self.decoder[-1].weight.mul_(0.01)
             self.decoder[-1].bias.zero_()
         self.repulsion = RepulsionLayer(cfg.repulsion_threshold, cfg.repulsion_hidden)
+        if cfg.body_repulsion:
+            self.body_repulsion = RepulsionLayer(cfg.body_repulsion_threshold, cfg.repulsion_hidden,
+                                                 max_depth=BODY_REPULSION_MAX_DEPTH)
+            self.body_repulsion.init_as_projection()
         self.register_buffer("output_scale", torch.tensor(float(cfg.output_scale), dtype=torch.float32))
 
     def make_topology(self, cloth: Any) -> GraphTopology:
@@ -175,9 +197,12 @@ class SMLN(nn.Module):
 
         Returns:
             p: (V, 3) predicted acceleration, m/frame^2 (zero on pinned vertices).
-            a: (V, 3) repulsion acceleration, m/frame^2 (zeros if the layer is off; zero on pinned vertices).
+            a: (V, 3) repulsion acceleration, m/frame^2 (zeros if the layer is off; zero on pinned vertices): the
+                body stage's push (if ``body_repulsion``) plus the layer pairs'.
             extras: ``x_hat`` (V, 3) = x_t + v_t + p, ``x_next`` = x_hat + a with pinned vertices at their
-                targets, ``repulsion`` (the layer's extras, if on).
+                targets, ``repulsion`` (the layer's extras, if on), ``body_repulsion`` (the body stage's: ``a``
+                (V, 3), ``active_vertices`` (P_a,) the garment vertices pushed, ``magnitude`` (P_a,) m/frame^2,
+                ``signed_distance`` (Eb,) of every body edge's garment vertex at x̂, m).
         """
         h = self.node_encoder(self.node_norm(graph.node_features))
         me, ve = graph.mesh_edges, graph.virtual_edges
@@ -202,7 +227,8 @@ class SMLN(nn.Module):
         x_hat = graph.x_cur + graph.velocity + p
         extras: dict[str, Any] = {}
         if self.config.use_repulsion_layer:
-            a, extras["repulsion"] = self._cascade_repulsion(topology, graph, x_hat, free)
+            a_body = self._body_repulsion(graph, x_hat, free, extras) if self.config.body_repulsion else None
+            a, extras["repulsion"] = self._cascade_repulsion(topology, graph, x_hat, free, a_body)
         else:
             a = torch.zeros_like(p)
         pin = topology.pinned.unsqueeze(-1)
@@ -211,8 +237,30 @@ class SMLN(nn.Module):
         extras["x_next"] = x_next
         return p, a, extras
 
+    def _body_repulsion(self, graph: GraphInputs, x_hat: torch.Tensor, free: torch.Tensor,
+                        extras: dict[str, Any]) -> torch.Tensor:
+        """The body stage: a push along the body normal for garment vertices close to or inside the body.
+
+        The pairs are the body world edges (garment vertex q, its nearest body vertex r at t). The body's positions
+        and normal come from the edge features: ``d0 = x_q - b_r(t)``, ``d1 = x_q - b_r(t+1)`` and the unit normal
+        ``n_r(t+1)`` (columns 0-2, 4-6 and 9-11, :meth:`GraphTopology.build`), so b_r(t) = x_q - d0 and
+        b_r(t+1) = x_q - d1; the body is kinematic and is not pushed.
+
+        Returns:
+            (V, 3) m/frame^2, zero on pinned vertices; stores the stage's extras in ``extras["body_repulsion"]``.
+        """
+        q, f = graph.body_receivers, graph.body_features
+        xq = graph.x_cur.index_select(0, q)
+        a, ex = self.body_repulsion.push(q, xq, x_hat.index_select(0, q), xq - f[:, 0:3], xq - f[:, 4:7],
+                                         f[:, 9:12], x_hat.shape[0])
+        a = a * free
+        ex["active_vertices"] = q[ex.pop("active")]
+        extras["body_repulsion"] = {"a": a, **ex}
+        return a
+
     def _cascade_repulsion(
-        self, topology: GraphTopology, graph: Any, x_hat: torch.Tensor, free: torch.Tensor
+        self, topology: GraphTopology, graph: Any, x_hat: torch.Tensor, free: torch.Tensor,
+        a_start: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The repulsion layer applied layer pair by layer pair, inner pairs first (Eq. 14-16).
 
@@ -223,12 +271,15 @@ class SMLN(nn.Module):
         got in the same step, and the push moved the middle layer *into* the jacket (test clips, seen 3-layer
         outfit: middle-vs-inner L-Coll 2.3 %, outer-vs-middle 8.0 %; docs/RESULTS.md).
 
+        ``a_start``: (V, 3) the body stage's push, applied before the first layer pair (None: zeros).
+
         Returns:
-            a (V, 3) m/frame^2 (zero on pinned vertices) and the layer's extras, concatenated over the stages.
+            a (V, 3) m/frame^2 (zero on pinned vertices; includes ``a_start``) and the layer's extras, concatenated
+            over the stages.
         """
         pairs = graph.repulsion_pairs
         outer_layer = topology.layer_index.to(pairs.device)[pairs[0]]
-        a = torch.zeros_like(x_hat)
+        a = torch.zeros_like(x_hat) if a_start is None else a_start
         stages: list[dict[str, torch.Tensor]] = []
         for k in range(1, max(topology.num_layers, 2)):  # one stage per adjacent layer pair (1-2 in practice)
             x_k = x_hat + a

@@ -1,0 +1,127 @@
+"""The body stage of the repulsion layer (``SMLNConfig.body_repulsion``): analytic pushes, the depth window,
+config rules, the migration from a model without it and the checkpoint round trip."""
+
+import pytest
+import torch
+
+from smln.checkpoint import load_checkpoint, save_checkpoint
+from smln.geometry import vertex_normals
+from smln.graph.synthetic import capsule_body, rigid_lbs, sway_motion, tube_outfit
+from smln.model import SMLN, RepulsionLayer, SMLNConfig
+from smln.model.migrate import add_body_repulsion
+from smln.model.smln import BODY_REPULSION_MAX_DEPTH
+
+
+def small_config(**kw):
+    base = dict(latent_size=16, schedule=((0, 1), (1, 1), (2, 1), (1, 1), (0, 1)))
+    base.update(kw)
+    return SMLNConfig(**base)
+
+
+def test_projection_init_pushes_exactly_to_the_threshold():
+    """softplus(MLP) = 1: a garment vertex at signed distance e < threshold moves by (threshold - e) along n."""
+    layer = RepulsionLayer(threshold=0.003, max_depth=0.02)
+    layer.init_as_projection()
+    with pytest.raises(ValueError):
+        layer.init_as_projection(0.0)
+    n = torch.nn.functional.normalize(torch.tensor([[0.3, -0.2, 0.9]]), dim=-1).expand(4, 3)
+    depth = torch.tensor([-0.005, 0.001, 0.004, -0.03])  # 5 mm inside, 1 mm outside, beyond thr, beyond max depth
+    inner = torch.zeros(4, 3)
+    outer = inner + depth[:, None] * n
+    a, ex = layer.push(torch.arange(4), outer, outer, inner, inner, n, 4)
+    assert torch.allclose(a[0], 0.008 * n[0], atol=1e-7)
+    assert torch.allclose(a[1], 0.002 * n[1], atol=1e-7)
+    assert torch.count_nonzero(a[2:]) == 0
+    assert ex["active"].tolist() == [0, 1]
+    assert torch.allclose(ex["signed_distance"], depth, atol=1e-7)
+    # after the push both vertices sit on the threshold plane
+    assert torch.allclose(((outer[:2] + a[:2]) * n[:2]).sum(-1), torch.full((2,), 0.003), atol=1e-7)
+
+
+def test_push_sums_pairs_on_a_shared_vertex_and_layer_forward_is_unchanged():
+    layer = RepulsionLayer(threshold=0.005)
+    torch.manual_seed(1)
+    x = torch.randn(6, 3) * 0.003
+    n = torch.nn.functional.normalize(torch.randn(6, 3), dim=-1)
+    pairs = torch.tensor([[3, 3, 4], [0, 1, 2]])
+    a, ex = layer(x, x, n, pairs)
+    a_push, _ = layer.push(pairs[0], x[pairs[0]], x[pairs[0]], x[pairs[1]], x[pairs[1]], n[pairs[1]], 6)
+    assert torch.equal(a, a_push)
+    assert ex["active_pairs"].shape[0] == 2
+    assert torch.count_nonzero(a[[0, 1, 2, 5]]) == 0
+
+
+def test_config_rules():
+    with pytest.raises(ValueError, match="body_repulsion"):
+        SMLNConfig(body_repulsion=True, use_repulsion_layer=False)
+    with pytest.raises(ValueError, match="body_repulsion"):
+        SMLNConfig(body_repulsion=True, body_normal_features=False)
+    with pytest.raises(ValueError, match="threshold"):
+        SMLNConfig(body_repulsion=True, body_repulsion_threshold=0.0)
+    cfg = SMLNConfig(body_repulsion=True, body_repulsion_threshold=0.002)
+    assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
+    assert not hasattr(SMLN(SMLNConfig()), "body_repulsion")  # off by default: no extra weights
+
+
+@pytest.fixture(scope="module")
+def tight_scene():
+    """A tube 3 mm outside a capsule body, moved into it by half a centimetre at the next frame: the body stage
+    sees vertices inside the body."""
+    cloth = tube_outfit(radii=(0.103, 0.125), n_around=24, n_rings=10)
+    bv, bf = capsule_body(radius=0.1, height=1.2, max_edge=0.03)
+    tr = sway_motion(4)
+    body = rigid_lbs(torch.as_tensor(bv), tr)
+    return cloth, body, rigid_lbs(cloth.rest_vertices, tr), vertex_normals(body, torch.as_tensor(bf))
+
+
+def test_body_stage_pushes_inner_layer_out_of_the_body(tight_scene):
+    cloth, body, xs, normals = tight_scene
+    torch.manual_seed(0)
+    old = SMLN(small_config()).eval()
+    new = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
+    add_body_repulsion(old, new)
+    topo = new.make_topology(cloth)
+    shift = torch.tensor([0.006, 0.0, 0.0])  # every vertex moves 6 mm along +x: the -x side enters the body
+    with torch.no_grad():
+        p0, a0, ex0 = old.step(topo, xs[1] - shift, xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+        p1, a1, ex1 = new.step(topo, xs[1] - shift, xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    assert torch.equal(p0, p1)  # the network's own prediction is untouched
+    rb = ex1["body_repulsion"]
+    pushed = rb["active_vertices"]
+    assert pushed.numel() > 0
+    # every free pushed vertex ends on the threshold plane of its body edge's vertex at t+1 (projection init)
+    g = ex1["graph"]
+    q, f = g.body_receivers, g.body_features
+    b_next, n = g.x_cur[q] - f[:, 4:7], f[:, 9:12]
+    x_hat = ex1["x_hat"]
+    e = ((x_hat[q] - b_next) * n).sum(-1)
+    assert torch.allclose(rb["signed_distance"], e, atol=1e-6)
+    free = ~cloth.pinned[q]
+    hit = (e < 0.004) & (e > -BODY_REPULSION_MAX_DEPTH) & free
+    assert hit.sum() > 10 and (e[hit] < 0).any()  # the shift put some of them inside the body
+    after = ((x_hat[q] + rb["a"][q] - b_next) * n).sum(-1)
+    assert (after[hit] - 0.004).abs().max() < 2e-5  # the body normals are unit to 1e-3 at the capsule poles
+    assert torch.count_nonzero(rb["a"][~torch.isin(torch.arange(cloth.num_vertices), pushed)]) == 0
+    assert torch.count_nonzero(rb["a"][cloth.pinned]) == 0
+    # the body push is part of the returned repulsion acceleration and of x_next
+    assert torch.allclose(ex1["x_next"][~cloth.pinned], (x_hat + a1)[~cloth.pinned])
+
+
+def test_add_body_repulsion_copies_every_weight_and_round_trips(tmp_path, tight_scene):
+    torch.manual_seed(0)
+    old = SMLN(small_config())
+    new = SMLN(small_config(body_repulsion=True))
+    add_body_repulsion(old, new, push_fraction=0.5)
+    feats = torch.randn(7, 4)
+    assert torch.allclose(torch.nn.functional.softplus(new.body_repulsion.mlp(feats)), torch.full((7, 1), 0.5))
+    for k, v in old.state_dict().items():
+        assert torch.equal(new.state_dict()[k], v), k
+    with pytest.raises(ValueError, match="body stage"):
+        add_body_repulsion(old, SMLN(small_config(body_repulsion=True, latent_size=8)))
+    with pytest.raises(ValueError):
+        add_body_repulsion(new, new)
+    save_checkpoint(tmp_path / "ck", new, card={"variant": "full"})
+    loaded, card = load_checkpoint(tmp_path / "ck")
+    assert card["config"]["body_repulsion"] is True
+    for k, v in new.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v), k
