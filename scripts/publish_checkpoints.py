@@ -23,6 +23,8 @@ DESCRIPTIONS = {
     "no_repulsion_layer": "repulsion loss only, no repulsion layer (Table 3 'W/o repulsion')",
     "baseline": "neither repulsion layer nor repulsion loss (Table 3 'W/o loss and repulsion')",
 }
+BODY_STAGE_NOTE = ("; the repulsion layer also has a body stage, our extension of the paper: the same learned push "
+                   "between the body and the garments, before the layer pairs (SMLNConfig.body_repulsion)")
 
 
 def eval_summary(results: list[dict], method: str) -> dict[str, float]:
@@ -70,7 +72,7 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
     card["tensors_file"] = "model.safetensors"
-    card["description"] = DESCRIPTIONS[variant]
+    card["description"] = DESCRIPTIONS[variant] + (BODY_STAGE_NOTE if card["config"].get("body_repulsion") else "")
     if results:
         card["evaluation"] = eval_summary(results, variant)
     (out / "card.json").write_text(json.dumps(card, indent=2, sort_keys=True))
