@@ -501,3 +501,38 @@ def test_unknown_start_sampling_is_refused(tmp_path):
         Trainer(TrainConfig(start_sampling="fast"), tmp_path)
     with pytest.raises(ValueError, match="speed_mix"):
         Trainer(TrainConfig(start_sampling="speed", speed_mix=1.5), tmp_path)
+
+
+@pytest.mark.slow
+def test_init_from_the_shipped_checkpoint_adds_the_body_stage(tmp_path):
+    """A run whose model config adds the body stage of the repulsion layer, initialised from the shipped full
+    checkpoint: every trained weight is kept (same prediction p on a real training state) and the new stage starts
+    at the --body-push-init fraction of a projection onto its threshold."""
+    import json
+
+    from smln.checkpoint import load_checkpoint
+
+    shipped, card = load_checkpoint("checkpoints/full")
+    steps = int(card["training"]["steps"])
+    (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True,
+                                                              "body_repulsion_threshold": 0.003}}))
+    trainer = train(["--out", str(tmp_path / "b"), "--max-steps", str(steps), "--init-from", "checkpoints/full",
+                     "--config", str(tmp_path / "body.json"), "--body-push-init", "0.5", "--outfits", _outfit(),
+                     *TINY])
+    assert trainer.step == steps and trainer.model.config.body_repulsion
+    for key, value in shipped.state_dict().items():
+        assert torch.equal(trainer.model.state_dict()[key], value), key
+    scene = trainer.cache.get(_outfit(), "female_average", "02_01_walk")
+    body_next = scene.body.vertices[6]
+    g = scene.topology.build(scene.skinned[4], scene.skinned[5], scene.body.vertices[5], body_next,
+                             scene.skinned[6], body_normals_next=vertex_normals(body_next, scene.body.faces))
+    trainer.model.eval()
+    with torch.no_grad():
+        p_old, _, _ = shipped.eval()(g, scene.topology)
+        p_new, _, ex = trainer.model(g, scene.topology)
+    torch.testing.assert_close(p_new, p_old, rtol=1e-5, atol=1e-8)
+    rb = ex["body_repulsion"]
+    e = rb["signed_distance"]
+    active = (e < 0.003) & (e > -0.02)
+    assert active.sum() > 0 and rb["magnitude"].numel() == int(active.sum())
+    torch.testing.assert_close(rb["magnitude"], 0.5 * (0.003 - e[active]), rtol=1e-5, atol=1e-9)
