@@ -121,7 +121,10 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
     with gui.add_folder("Inspect"):
         layer_pen = gui.add_checkbox("Inter-layer penetrations (red)", display.show_layer_pen)
         body_pen = gui.add_checkbox("Body penetrations (magenta)", display.show_body_pen)
-        vectors = gui.add_checkbox("Repulsion vectors", display.show_vectors)
+        vectors = gui.add_checkbox(
+            "Repulsion vectors", display.show_vectors,
+            hint="the repulsion layer's push a at each garment vertex: out of the layer beneath, and out of the body "
+                 "for checkpoints whose layer has the body stage (SMLNConfig.body_repulsion)")
         vector_scale = gui.add_slider("Vector scale (m per m/frame²)", min=1.0, max=500.0, step=1.0,
                                       initial_value=display.vector_scale)
         vector_threshold = gui.add_number("Vector threshold (m/frame²)", display.vector_threshold, min=0.0,
