@@ -96,6 +96,7 @@ class TrainConfig:
     layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
     model: dict[str, Any] = field(default_factory=dict)
     body_push_init: float = 1.0  # an --init-from run that adds the body repulsion stage starts it at this push
+    freeze_body_stage: bool = False  # the body stage of the repulsion layer keeps its initial weights (a fixed push)
 
     def weights(self) -> LossWeights:
         """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline`` (the
@@ -283,6 +284,11 @@ class Trainer:
         self.rank, self.world = _dist_info()
         torch.manual_seed(cfg.seed)
         self.model = SMLN(cfg.model_config()).to(self.device)
+        if cfg.freeze_body_stage:
+            if not self.model.config.body_repulsion:
+                raise ValueError("freeze_body_stage needs a model config with body_repulsion")
+            # no gradient, so Adam, the clipping and DDP leave the stage alone; --init-from still sets its weights
+            self.model.body_repulsion.requires_grad_(False)
         self.net: torch.nn.Module = self.model
         if cfg.compile:  # a shallow copy sharing the weights: self.model (saved, averaged) keeps its module tree
             from smln.model.compiled import with_compiled_processor
@@ -769,6 +775,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                    help="with --init-from a checkpoint without the body stage of the repulsion layer and a model "
                         "config with body_repulsion: the stage starts pushing this fraction of the way to its "
                         "threshold (default 1 = a collision projection; smln.model.migrate.add_body_repulsion)")
+    p.add_argument("--freeze-body-stage", action="store_true", default=None,
+                   help="the body stage of the repulsion layer is not trained: it keeps the push it starts with "
+                        "(--body-push-init with --init-from, else a projection onto its threshold) and the rest of "
+                        "the network learns around it")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -790,7 +800,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("start_sampling", "start_sampling"), ("speed_mix", "speed_mix"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),
-                      ("validation_skin_guard", "validation_skin_guard"), ("body_push_init", "body_push_init")):
+                      ("validation_skin_guard", "validation_skin_guard"), ("body_push_init", "body_push_init"),
+                      ("freeze_body_stage", "freeze_body_stage")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

@@ -536,3 +536,42 @@ def test_init_from_the_shipped_checkpoint_adds_the_body_stage(tmp_path):
     active = (e < 0.003) & (e > -0.02)
     assert active.sum() > 0 and rb["magnitude"].numel() == int(active.sum())
     torch.testing.assert_close(rb["magnitude"], 0.5 * (0.003 - e[active]), rtol=1e-5, atol=1e-9)
+
+
+def test_a_frozen_body_stage_keeps_its_initial_push_while_the_rest_trains(tmp_path):
+    """--freeze-body-stage: after real optimiser steps from the shipped checkpoint the body stage is still the
+    0.5 push it started as (softplus(MLP) = 0.5 for every input), in the trained weights, their moving average and
+    the saved checkpoint, while the rest of the network has moved."""
+    import json
+    import math
+
+    from smln.checkpoint import load_checkpoint
+
+    shipped, card = load_checkpoint("checkpoints/full")
+    steps = int(card["training"]["steps"])
+    (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True}}))
+    trainer = train(["--out", str(tmp_path / "f"), "--max-steps", str(steps + 3), "--init-from", "checkpoints/full",
+                     "--config", str(tmp_path / "body.json"), "--body-push-init", "0.5", "--freeze-body-stage",
+                     "--lr", "1e-3", "--lr-restart", "--outfits", _outfit(), *TINY])
+    assert trainer.step >= steps + 3
+    saved, _ = load_checkpoint(tmp_path / "f" / "last")
+    for model in (trainer.model, trainer.ema, saved):
+        last = model.body_repulsion.mlp[-1]
+        assert torch.count_nonzero(last.weight) == 0
+        assert math.isclose(float(torch.nn.functional.softplus(last.bias.detach())), 0.5, rel_tol=1e-6)
+    # the stage's hidden layers are the ones the run drew at construction (seeded), untouched by the steps
+    from smln.model.smln import SMLN
+
+    torch.manual_seed(trainer.cfg.seed)
+    drawn = SMLN(trainer.cfg.model_config()).body_repulsion.mlp
+    for i in (0, 2):
+        assert torch.equal(trainer.model.body_repulsion.mlp[i].weight, drawn[i].weight)
+        assert torch.equal(saved.body_repulsion.mlp[i].bias, drawn[i].bias)
+    moved = [k for k, v in shipped.state_dict().items() if not torch.equal(trainer.model.state_dict()[k], v)]
+    assert any(k.startswith("processor.") for k in moved)
+
+
+def test_freezing_the_body_stage_needs_a_model_with_one(tmp_path):
+    with pytest.raises(ValueError, match="body_repulsion"):
+        train(["--out", str(tmp_path / "x"), "--max-steps", "1", "--freeze-body-stage", "--outfits", _outfit(),
+               *TINY])
