@@ -703,6 +703,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--variant", choices=list(VARIANTS))
     p.add_argument("--out", required=True, help="run directory (log.csv, loss.png, train_state.pt, best/, last/)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/train_state.pt")
+    p.add_argument("--force", action="store_true",
+                   help="start a new run in an OUT that already holds one (its train_state.pt, last checkpoint and "
+                        "log.csv are overwritten); without it such an OUT is refused unless --resume")
     p.add_argument("--minutes", type=float,
                    help="wall-clock budget of the whole run; it ends cleanly after it (a --resume'd run counts the "
                         "time it has already spent: to go on for 60 more minutes, add 60 to its last budget)")
@@ -807,8 +810,27 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     return cfg, args
 
 
+RUN_FILES = ("train_state.pt", "last.safetensors", "log.csv")
+"""Files whose presence in ``--out`` marks a run there (what a new run would overwrite)."""
+
+
+def refuse_existing_run(out: Path, resume: bool, force: bool) -> None:
+    """A new run (no ``--resume``) must not overwrite a run already in ``out`` unless forced.
+
+    Raises:
+        FileExistsError: naming the run's files and the two ways on (``--resume``, ``--force``).
+    """
+    if resume or force:
+        return
+    found = [name for name in RUN_FILES if (out / name).exists()]
+    if found:
+        raise FileExistsError(f"{out} already holds a training run ({', '.join(found)}); pass --resume to continue it, "
+                              "--force to start over in it (its files are overwritten), or choose another --out")
+
+
 def train(argv: list[str] | None = None) -> Trainer:
     cfg, args = parse_args(argv)
+    refuse_existing_run(Path(args.out), args.resume, args.force)
     set_threads(cfg.threads)
     trainer = Trainer(cfg, Path(args.out), device=args.device, dist_backend=args.dist_backend)
     if args.resume:

@@ -68,6 +68,28 @@ def test_resume_continues_bit_for_bit(tmp_path):
                        torch.cat([p.flatten() for p in straight.ema.parameters()]))
 
 
+def test_a_new_run_refuses_an_out_that_holds_a_run_and_leaves_its_files(tmp_path):
+    """Without --resume or --force, training into a run's directory would overwrite its state: refused, untouched."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "log.csv").write_text("step,total\n7,1.0\n")
+    (out / "train_state.pt").write_bytes(b"the earlier run's state")
+    with pytest.raises(FileExistsError, match="--resume.*--force"):
+        train(["--out", str(out), "--max-steps", "0", "--outfits", _outfit(), *TINY])
+    assert (out / "log.csv").read_text() == "step,total\n7,1.0\n"
+    assert (out / "train_state.pt").read_bytes() == b"the earlier run's state"
+    assert sorted(p.name for p in out.iterdir()) == ["log.csv", "train_state.pt"]
+    # a directory with other files (a config of one's own) is no run: accepted
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    trainer = train(["--out", str(other), "--max-steps", "0", "--outfits", _outfit(), *TINY])
+    assert trainer.step == 0 and (other / "notes.txt").read_text() == "mine"
+    # --force starts over in it
+    forced = train(["--out", str(out), "--max-steps", "0", "--force", "--outfits", _outfit(), *TINY])
+    assert forced.step == 0 and (out / "config.json").exists()
+
+
 @pytest.mark.slow
 def test_minutes_is_the_whole_runs_budget_across_resumes(tmp_path):
     """``--minutes`` bounds the run's total wall time: a resumed run that has spent it takes no step."""
