@@ -42,6 +42,20 @@ def eval_summary(results: list[dict], method: str) -> dict[str, float]:
     return out
 
 
+def constant_body_push(checkpoint: Path) -> float | None:
+    """The body stage's push fraction when it does not depend on its input (its MLP's last layer all zero, as
+    ``--freeze-body-stage`` keeps it from ``init_as_projection``, and as the average of such runs stays), else None."""
+    import torch
+
+    from smln.checkpoint import load_checkpoint
+
+    model, _ = load_checkpoint(checkpoint)
+    last = model.body_repulsion.mlp[-1]
+    if bool(last.weight.detach().eq(0).all()):
+        return float(torch.nn.functional.softplus(last.bias.detach()).item())
+    return None
+
+
 def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[dict] | None) -> Path:
     from smln.checkpoint import load_checkpoint
 
@@ -73,6 +87,10 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
     shutil.copyfile(run_dir / f"{which}.safetensors", out / "model.safetensors")
     card["tensors_file"] = "model.safetensors"
     card["description"] = DESCRIPTIONS[variant] + (BODY_STAGE_NOTE if card["config"].get("body_repulsion") else "")
+    push = constant_body_push(run_dir / which) if card["config"].get("body_repulsion") else None
+    if push is not None:
+        card["description"] += (f"; its body stage was not trained (smln train --freeze-body-stage): it pushes every "
+                                f"vertex it acts on {push:.2f} of the way to its threshold")
     if results:
         card["evaluation"] = eval_summary(results, variant)
     (out / "card.json").write_text(json.dumps(card, indent=2, sort_keys=True))
@@ -82,7 +100,7 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
     md = [
         f"# SMLN checkpoint `{variant}`",
         "",
-        f"{DESCRIPTIONS[variant]}.",
+        f"{card['description']}.",
         "",
         "Trained self-supervised (physics losses only, no garment data) on the training split of outfits and CMU",
         "clips; see `docs/RESULTS.md` for the tables and `card.json` for every setting.",

@@ -51,3 +51,27 @@ def test_publish_a_snapshot_by_its_name(tmp_path):
     for key, value in model.state_dict().items():
         assert torch.equal(loaded.state_dict()[key], value), key
     assert card["training"]["steps"] == 5 and "baseline" in (out / "README.md").read_text()
+
+
+def test_the_cards_name_the_body_stage_and_whether_it_was_frozen(tmp_path):
+    torch.manual_seed(2)
+    model = SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1)), body_repulsion=True))
+    with torch.no_grad():  # a stage whose push depends on its input, as training leaves it
+        model.body_repulsion.mlp[-1].weight.normal_(0.0, 0.1)
+    run = tmp_path / "runs" / "x_full"
+    save_checkpoint(run / "trained", model, card={"variant": "full", "training": {"steps": 3, "hardware": "test"}})
+    out = publish_checkpoints.publish(run, "full", "trained", tmp_path / "dest0", None)
+    readme = (out / "README.md").read_text()
+    assert "body stage" in readme and "not trained" not in readme  # a stage whose push depends on its input
+    model.body_repulsion.init_as_projection(0.75)  # a constant push, as --freeze-body-stage keeps it
+    save_checkpoint(run / "last", model, card={"variant": "full", "training": {"steps": 3, "hardware": "test"}})
+    out = publish_checkpoints.publish(run, "full", "last", tmp_path / "dest", None)
+    readme = (out / "README.md").read_text()
+    description = json.loads((out / "card.json").read_text())["description"]
+    for text in (readme, description):
+        assert "body stage" in text and "not trained" in text and "0.75 of the way" in text
+    # a model without the stage says nothing of one
+    plain = SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1))))
+    save_checkpoint(run / "best", plain, card={"variant": "full", "training": {"steps": 3, "hardware": "test"}})
+    out = publish_checkpoints.publish(run, "full", "best", tmp_path / "dest2", None)
+    assert "body stage" not in (out / "README.md").read_text()
