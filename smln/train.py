@@ -705,7 +705,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--resume", action="store_true", help="continue from OUT/train_state.pt")
     p.add_argument("--force", action="store_true",
                    help="start a new run in an OUT that already holds one (its train_state.pt, last checkpoint and "
-                        "log.csv are overwritten); without it such an OUT is refused unless --resume")
+                        "log.csv are overwritten; its best and snapshots/ stay until the new run replaces them); "
+                        "without it such an OUT is refused unless --resume")
     p.add_argument("--minutes", type=float,
                    help="wall-clock budget of the whole run; it ends cleanly after it (a --resume'd run counts the "
                         "time it has already spent: to go on for 60 more minutes, add 60 to its last budget)")
