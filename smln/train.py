@@ -94,6 +94,7 @@ class TrainConfig:
     repulsion_eps: float | None = None  # None = REPULSION_EPS (3 mm); the layers' clearance in the repulsion loss, m
     layer_friction_weight: float | None = None  # None = off; the friction between layers (session 11)
     layer_friction_normal: str = "weight"  # LAYER_FRICTION_NORMALS; "contact": + the repulsion push (session 12)
+    layer_friction_radius: float | None = None  # None = repulsion clearance + 2 mm; the layer friction's contact, m
     model: dict[str, Any] = field(default_factory=dict)
     body_push_init: float = 1.0  # an --init-from run that adds the body repulsion stage starts it at this push
     freeze_body_stage: bool = False  # the body stage of the repulsion layer keeps its initial weights (a fixed push)
@@ -110,7 +111,7 @@ class TrainConfig:
             if not 0.0 < self.stretch_weight <= 100.0:
                 raise ValueError(f"stretch_weight must be in (0, 100], got {self.stretch_weight!r}")
             w.stretch = self.stretch_weight
-        for clearance in ("collision_eps", "repulsion_eps"):  # meters, the same name in LossWeights
+        for clearance in ("collision_eps", "repulsion_eps", "layer_friction_radius"):  # m, same name in LossWeights
             value = getattr(self, clearance)
             if value is not None:
                 if not 0.0 <= value < 0.05:
@@ -764,6 +765,9 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--layer-friction-normal", choices=LAYER_FRICTION_NORMALS,
                    help="the layer friction's normal force: weight (m g, default) or contact (m g + the repulsion "
                         "loss's push, lagged; baseline has none and keeps the weight)")
+    p.add_argument("--layer-friction-radius", type=float,
+                   help="contact distance of the layer friction, m (default: the repulsion clearance + 2 mm, "
+                        "smln.losses.friction.layer_friction_radius; sessions 27-29 ran with a fixed 0.005)")
     p.add_argument("--collision-weight", type=float,
                    help="weight of the cubic body-collision penalty (default: LossWeights.training(), 1e4)")
     p.add_argument("--stretch-weight", type=float,
@@ -804,6 +808,7 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("start_sampling", "start_sampling"), ("speed_mix", "speed_mix"),
                       ("noise_normal_std", "noise_normal_std"), ("layer_friction_weight", "layer_friction_weight"),
                       ("layer_friction_normal", "layer_friction_normal"),
+                      ("layer_friction_radius", "layer_friction_radius"),
                       ("validation_skin_guard", "validation_skin_guard"), ("body_push_init", "body_push_init"),
                       ("freeze_body_stage", "freeze_body_stage")):
         if getattr(args, flag) is not None:
@@ -850,11 +855,20 @@ def train(argv: list[str] | None = None) -> Trainer:
 
 def close_distributed() -> None:
     """Tear down the process group a distributed run opened (no-op otherwise). Without it a gloo rank can abort at
-    interpreter exit ("terminate called without an active exception") after its work is done."""
+    interpreter exit ("terminate called without an active exception") after its work is done.
+
+    The ranks first meet at a barrier, so none closes its connections while a peer still has a collective in flight;
+    drop the trainer (its DDP wrapper holds the group) before calling this, so the gloo threads are gone before the
+    interpreter's finalisation."""
+    import gc
+
     import torch.distributed as dist
 
     if dist.is_available() and dist.is_initialized():
+        gc.collect()
+        dist.barrier()
         dist.destroy_process_group()
+        gc.collect()
 
 
 def cli_main(args: argparse.Namespace) -> None:

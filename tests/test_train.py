@@ -114,7 +114,8 @@ def test_ddp_two_cpu_processes_keep_identical_parameters(tmp_path):
         "dist.all_gather(gathered, flat)\n"
         "assert all(torch.equal(gathered[0], g) for g in gathered), 'ranks diverged'\n"
         "assert t.step >= 3\n"
-        "print('DDP-OK', dist.get_rank(), t.step)\n"
+        "print('DDP-OK', dist.get_rank(), t.step, flush=True)\n"
+        "del t  # its DDP wrapper holds the process group (as cli_main, which keeps no trainer)\n"
         "from smln.train import close_distributed\n"
         "close_distributed()\n"
         "assert not dist.is_initialized()\n"
@@ -306,6 +307,12 @@ def test_variant_loss_weights():
     assert cfg.weights().repulsion_eps == 4.5e-3
     with pytest.raises(ValueError, match="repulsion_eps"):
         TrainConfig(variant="full", repulsion_eps=-1e-3).weights()
+    # the layer friction's contact radius follows that clearance unless given (None in the weights)
+    assert cfg.weights().layer_friction_radius is None
+    cfg, _ = parse_args(["--out", "x", "--variant", "full", "--layer-friction-radius", "0.005"])
+    assert cfg.weights().layer_friction_radius == 5e-3
+    with pytest.raises(ValueError, match="layer_friction_radius"):
+        TrainConfig(variant="full", layer_friction_radius=-1e-3).weights()
     # the stretch weight: the paper's 1 unless set, for every variant (baseline too); nonsense refused
     assert TrainConfig(variant="full").weights().stretch == 1.0
     for variant in ("full", "no_repulsion_layer", "baseline"):
