@@ -271,6 +271,34 @@ def test_layer_friction_normal_force_adds_the_lagged_repulsion_push():
         x_cur, x_cur + slip, normals, pairs, rest).item(), rel_tol=1e-5)
 
 
+def test_layer_friction_contact_band_follows_the_repulsion_clearance():
+    """The contact radius is the clearance + 2 mm: a sheet resting 6 mm out is outside the band at the default
+    3 mm clearance (radius 5 mm) and inside it at a 4.5 mm one (radius 6.5 mm), where it costs the Coulomb work of
+    its weight; an explicit radius (a fixed 5 mm, as sessions 27-29 trained) overrides it, in total_loss too."""
+    from smln.losses.friction import LAYER_FRICTION_RADIUS, layer_friction_radius
+
+    assert math.isclose(LAYER_FRICTION_RADIUS, 0.005) and math.isclose(layer_friction_radius(), 0.005)
+    assert math.isclose(layer_friction_radius(0.0045), 0.0065)
+    rest, x_cur = two_sheets(0.006)
+    pairs = layer_pairs(x_cur, rest)
+    normals = vertex_normals(x_cur, rest.faces)
+    slip = torch.zeros_like(x_cur)
+    slip[9:, 0] = 0.005
+    c = 1e-4
+    work = rest.material.friction * GRAVITY * float(rest.mass[9:].sum()) * (math.sqrt(0.005**2 + c * c) - c)
+    assert layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest).item() == 0.0
+    wide = layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest, eps=0.0045).item()
+    assert math.isclose(wide, work, rel_tol=1e-4)
+    assert layer_friction_energy(x_cur, x_cur + slip, normals, pairs, rest, eps=0.0045, radius=0.005).item() == 0.0
+    far_body = torch.tensor([[0.0, 0.0, -1.0], [1.0, 0, -1], [0, 1.0, -1]])
+    body = BodyStep.from_vertices(far_body, far_body, torch.tensor([[0, 1, 2]]))
+    follows = total_loss(x_cur, x_cur, x_cur + slip, body, rest,
+                         LossWeights(repulsion=0.0, layer_friction=1.5, repulsion_eps=0.0045))[1]
+    fixed_5mm = LossWeights(repulsion=0.0, layer_friction=1.5, repulsion_eps=0.0045, layer_friction_radius=0.005)
+    fixed = total_loss(x_cur, x_cur, x_cur + slip, body, rest, fixed_5mm)[1]
+    assert math.isclose(follows["layer_friction"], work, rel_tol=1e-4) and fixed["layer_friction"] == 0.0
+
+
 def test_gradcheck_float64_tiny_mesh():
     pair = (np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0.1], [0.5, -1, 0.2]]), np.array([[0, 1, 2], [1, 0, 3]]))
     rest = ClothRest.from_cloth(

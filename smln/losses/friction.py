@@ -64,10 +64,26 @@ def friction_energy(
     return (rest.material.friction * g * rest.mass * contact * slip).sum()
 
 
-LAYER_FRICTION_RADIUS = 5e-3
-"""Contact distance between layers, meters: an outer vertex closer than this to its inner partner, along the
-partner's normal at t+1. Wider than the body's 3 mm because the repulsion term holds adjacent layers about its
-3 mm clearance apart (:data:`smln.losses.repulsion.REPULSION_EPS`): a jacket resting on a t-shirt sits there."""
+LAYER_FRICTION_MARGIN = 2e-3
+"""How far beyond the repulsion clearance an outer vertex still counts as touching the layer beneath, meters."""
+
+LAYER_FRICTION_RADIUS = REPULSION_EPS + LAYER_FRICTION_MARGIN
+"""Contact distance between layers at the default clearance, meters (5 mm): an outer vertex closer than this to its
+inner partner, along the partner's normal at t+1. Wider than the body's 3 mm because the repulsion term holds
+adjacent layers about its 3 mm clearance apart (:data:`smln.losses.repulsion.REPULSION_EPS`): a jacket resting on a
+t-shirt sits there. With another clearance use :func:`layer_friction_radius`."""
+
+
+def layer_friction_radius(repulsion_eps: float = REPULSION_EPS) -> float:
+    """Contact distance between layers that goes with a repulsion clearance: ``repulsion_eps`` + 2 mm, meters.
+
+    The repulsion loss holds a resting outer layer about ``repulsion_eps`` in front of the layer beneath, so the
+    friction's contact band has to lie around that gap. A fixed 5 mm band with a 4.5 mm clearance (sessions 27-29)
+    left a resting jacket mostly outside it: on 05_01_walk the share of jacket-shirt pairs within 5 mm fell from
+    0.23 (r27, 3 mm clearance) to 0.17 (r36 A, 4.5 mm), and within 3 mm from 0.14 to 0.02 (docs/RESULTS.md,
+    session 30), and the jacket slid further down the shirt.
+    """
+    return float(repulsion_eps) + LAYER_FRICTION_MARGIN
 
 
 def layer_contact_slip(
@@ -111,7 +127,7 @@ def layer_friction_energy(
     normals_next: torch.Tensor,
     pairs: torch.Tensor,
     rest: ClothRest,
-    radius: float = LAYER_FRICTION_RADIUS,
+    radius: float | None = None,
     g: float = GRAVITY,
     contact_stiffness: float = 0.0,
     eps: float = REPULSION_EPS,
@@ -124,7 +140,8 @@ def layer_friction_energy(
     fine-tuning steps, docs/RESULTS.md, session 11). Eq. 22 read for the layer beneath as the "adjacent face":
     for each cross-layer pair (i outer, j inner) from :func:`smln.losses.repulsion.layer_pairs`, in contact
     when d = (x_i - x_j) . n_j < ``radius`` at t+1
-    (decided without gradient; a penetrated pair, d < 0, is in contact too):
+    (decided without gradient; a penetrated pair, d < 0, is in contact too; the radius follows the clearance,
+    :func:`layer_friction_radius`):
 
         s = (x_i^{t+1} - x_i^t) - (x_j^{t+1} - x_j^t)          slip of i relative to its partner
         s^T = s - (s . n_j) n_j
@@ -148,7 +165,8 @@ def layer_friction_energy(
         normals_next: (V, 3) unit cloth vertex normals at t+1 (used as directions only, without gradient).
         pairs: (P, 2) int64 (outer, inner) global vertex indices.
         rest: masses, free mask, material (mu = ``rest.material.friction``).
-        radius: contact distance, meters; g: m/s^2.
+        radius: contact distance, meters (None = :func:`layer_friction_radius` of ``eps``: 5 mm at the default
+            3 mm clearance); g: m/s^2.
         contact_stiffness: k, J/m^3 (0 = the weight alone); eps: the repulsion clearance, meters.
 
     Returns:
@@ -156,6 +174,8 @@ def layer_friction_energy(
     """
     if pairs.numel() == 0:
         return x_next.sum() * 0.0
+    if radius is None:
+        radius = layer_friction_radius(eps)
     st, touching, d = layer_contact_slip(x_cur, x_next, normals_next, pairs, rest, radius)
     with torch.no_grad():
         normal_force = g * rest.mass.index_select(0, pairs[:, 0])

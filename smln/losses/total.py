@@ -48,6 +48,10 @@ class LossWeights:
     layer_friction: float = 0.0
     """Weight of the friction between adjacent layers (:func:`~smln.losses.friction.layer_friction_energy`);
     0 = off (the paper's Eq. 22 and every run before session 11 hold the cloth against the body only)."""
+    layer_friction_radius: float | None = None
+    """Contact distance of the layer friction, meters; None = ``repulsion_eps`` + 2 mm
+    (:func:`~smln.losses.friction.layer_friction_radius`: 5 mm at the default clearance). Sessions 27-29 trained with
+    a 4.5 mm clearance and a fixed 5 mm radius: pass 0.005 to repeat them."""
     layer_friction_contact: bool = False
     """Add the repulsion term's contact force (k = ``repulsion``) to the weight as the layer friction's normal force
     (session 12); off = the weight alone (session 11). Nothing changes where ``repulsion`` is 0 (baseline)."""
@@ -158,7 +162,8 @@ def total_loss(
         if w.layer_friction:
             terms["layer_friction"] = layer_friction_energy(
                 x_cur, x_next, nt.t(), pairs, rest,
-                contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0, eps=w.repulsion_eps)
+                radius=w.layer_friction_radius, contact_stiffness=w.repulsion if w.layer_friction_contact else 0.0,
+                eps=w.repulsion_eps)
     wd = asdict(w)
     loss = sum(wd[k] * v for k, v in terms.items())
     values = {k: float(v.detach()) for k, v in terms.items()}
