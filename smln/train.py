@@ -853,33 +853,39 @@ def train(argv: list[str] | None = None) -> Trainer:
     return trainer
 
 
-def close_distributed() -> None:
+def close_distributed(wait_for_peers: bool = True) -> None:
     """Tear down the process group a distributed run opened (no-op otherwise). Without it a gloo rank can abort at
     interpreter exit ("terminate called without an active exception") after its work is done.
 
-    The ranks first meet at a barrier, so none closes its connections while a peer still has a collective in flight;
-    drop the trainer (its DDP wrapper holds the group) before calling this, so the gloo threads are gone before the
-    interpreter's finalisation."""
+    With ``wait_for_peers`` the ranks first meet at a barrier, so none closes its connections while a peer still has
+    a collective in flight; pass False on an error path (a peer that failed or is stuck in another collective would
+    never arrive). Drop the trainer (its DDP wrapper holds the group) before calling this, so the gloo threads are gone
+    before the interpreter's finalisation."""
     import gc
 
     import torch.distributed as dist
 
     if dist.is_available() and dist.is_initialized():
         gc.collect()
-        dist.barrier()
+        if wait_for_peers:
+            dist.barrier()
         dist.destroy_process_group()
         gc.collect()
 
 
-def cli_main(args: argparse.Namespace) -> None:
+def _train_and_close(argv: list[str] | None) -> None:
+    """Train, then tear the process group down (meeting the peers only when training finished)."""
+    finished = False
     try:
-        train(args.argv)
+        train(argv)
+        finished = True
     finally:
-        close_distributed()
+        close_distributed(wait_for_peers=finished)
+
+
+def cli_main(args: argparse.Namespace) -> None:
+    _train_and_close(args.argv)
 
 
 if __name__ == "__main__":
-    try:
-        train()
-    finally:
-        close_distributed()
+    _train_and_close(None)
