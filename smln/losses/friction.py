@@ -79,9 +79,9 @@ def layer_friction_radius(repulsion_eps: float = REPULSION_EPS) -> float:
 
     The repulsion loss holds a resting outer layer about ``repulsion_eps`` in front of the layer beneath, so the
     friction's contact band has to lie around that gap. A fixed 5 mm band with a 4.5 mm clearance (sessions 27-29)
-    left a resting jacket mostly outside it: on 05_01_walk the share of jacket-shirt pairs within 5 mm fell from
-    0.23 (r27, 3 mm clearance) to 0.17 (r36 A, 4.5 mm), and within 3 mm from 0.14 to 0.02 (docs/RESULTS.md,
-    session 30), and the jacket slid further down the shirt.
+    held fewer of a jacket's vertices: on 05_01_walk the share of jacket-shirt pairs within 5 mm was 0.17 for r36 A
+    (4.5 mm clearance) against 0.23 for r27 (3 mm), within 3 mm 0.02 against 0.14, and r36 A's jacket sank 36.7 mm
+    by frame 50 against r27's 30.8; continued with this radius it sank 33.1 mm (r37; docs/RESULTS.md, session 30).
     """
     return float(repulsion_eps) + LAYER_FRICTION_MARGIN
 
