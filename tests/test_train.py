@@ -205,7 +205,8 @@ def test_init_from_the_shipped_checkpoint_into_a_deeper_model_keeps_its_predicti
 
     shipped, card = load_checkpoint("checkpoints/full")
     steps = int(card["training"]["steps"])
-    deeper = {"mlp_hidden_layers": 2,
+    # the shipped architecture (whatever stage it has) with the two growable fields grown
+    deeper = {**shipped.config.to_dict(), "mlp_hidden_layers": 2,
               "schedule": [[lv, n + (1 if lv > 0 else 0)] for lv, n in shipped.config.schedule]}
     (tmp_path / "deeper.json").write_text(json.dumps({"model": deeper}))
     trainer = train(["--out", str(tmp_path / "g"), "--max-steps", str(steps), "--init-from", "checkpoints/full",
