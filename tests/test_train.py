@@ -533,20 +533,25 @@ def test_unknown_start_sampling_is_refused(tmp_path):
         Trainer(TrainConfig(start_sampling="speed", speed_mix=1.5), tmp_path)
 
 
+# a full checkpoint without the body stage of the repulsion layer (r25 A, the parent of r27, which was shipped in
+# sessions 20-32); the shipped full model has had the stage since session 33
+NO_BODY_STAGE = "checkpoints/experimental/body_weight_slow/full"
+
+
 @pytest.mark.slow
-def test_init_from_the_shipped_checkpoint_adds_the_body_stage(tmp_path):
-    """A run whose model config adds the body stage of the repulsion layer, initialised from the shipped full
-    checkpoint: every trained weight is kept (same prediction p on a real training state) and the new stage starts
-    at the --body-push-init fraction of a projection onto its threshold."""
+def test_init_from_a_checkpoint_without_a_body_stage_adds_it(tmp_path):
+    """A run whose model config adds the body stage of the repulsion layer, initialised from a full checkpoint
+    without one: every trained weight is kept (same prediction p on a real training state) and the new stage
+    starts at the --body-push-init fraction of a projection onto its threshold."""
     import json
 
     from smln.checkpoint import load_checkpoint
 
-    shipped, card = load_checkpoint("checkpoints/full")
+    shipped, card = load_checkpoint(NO_BODY_STAGE)
     steps = int(card["training"]["steps"])
     (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True,
                                                               "body_repulsion_threshold": 0.003}}))
-    trainer = train(["--out", str(tmp_path / "b"), "--max-steps", str(steps), "--init-from", "checkpoints/full",
+    trainer = train(["--out", str(tmp_path / "b"), "--max-steps", str(steps), "--init-from", NO_BODY_STAGE,
                      "--config", str(tmp_path / "body.json"), "--body-push-init", "0.5", "--outfits", _outfit(),
                      *TINY])
     assert trainer.step == steps and trainer.model.config.body_repulsion
@@ -569,18 +574,18 @@ def test_init_from_the_shipped_checkpoint_adds_the_body_stage(tmp_path):
 
 
 def test_a_frozen_body_stage_keeps_its_initial_push_while_the_rest_trains(tmp_path):
-    """--freeze-body-stage: after real optimiser steps from the shipped checkpoint the body stage is still the
-    0.5 push it started as (softplus(MLP) = 0.5 for every input), in the trained weights, their moving average and
-    the saved checkpoint, while the rest of the network has moved."""
+    """--freeze-body-stage: after real optimiser steps from a checkpoint without a body stage, the added stage is
+    still the 0.5 push it started as (softplus(MLP) = 0.5 for every input), in the trained weights, their moving
+    average and the saved checkpoint, while the rest of the network has moved."""
     import json
     import math
 
     from smln.checkpoint import load_checkpoint
 
-    shipped, card = load_checkpoint("checkpoints/full")
+    shipped, card = load_checkpoint(NO_BODY_STAGE)
     steps = int(card["training"]["steps"])
     (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True}}))
-    trainer = train(["--out", str(tmp_path / "f"), "--max-steps", str(steps + 3), "--init-from", "checkpoints/full",
+    trainer = train(["--out", str(tmp_path / "f"), "--max-steps", str(steps + 3), "--init-from", NO_BODY_STAGE,
                      "--config", str(tmp_path / "body.json"), "--body-push-init", "0.5", "--freeze-body-stage",
                      "--lr", "1e-3", "--lr-restart", "--outfits", _outfit(), *TINY])
     assert trainer.step >= steps + 3
