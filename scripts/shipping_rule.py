@@ -14,7 +14,7 @@
    skinned place at frame 50 of the walk (``bench/layer_sink.py``).
 
 The defaults are the shipped model's since session 33 (r43 A's evaluations beside r27's ablations, and its 25.5 mm
-sink); sessions 20-33 judged against r27 with ``--shipped-seen docs/results/r27_seen_*.json --shipped-held
+sink); sessions 20-33 (up to r43) judged against r27 with ``--shipped-seen docs/results/r27_seen_*.json --shipped-held
 docs/results/r27_held_*.json --max-sink-mm 30.8``; sessions 16-20
 judged against r22 (shipped sessions 15-19) with ``--shipped-seen docs/results/r22_seen_*.json --shipped-held
 docs/results/r22_held_*.json --max-sink-mm 34.5``, sessions 12-15 against soup14 with ``--shipped-seen

@@ -547,7 +547,7 @@ def test_init_from_a_checkpoint_without_a_body_stage_adds_it(tmp_path):
 
     from smln.checkpoint import load_checkpoint
 
-    shipped, card = load_checkpoint(NO_BODY_STAGE)
+    parent, card = load_checkpoint(NO_BODY_STAGE)
     steps = int(card["training"]["steps"])
     (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True,
                                                               "body_repulsion_threshold": 0.003}}))
@@ -555,7 +555,7 @@ def test_init_from_a_checkpoint_without_a_body_stage_adds_it(tmp_path):
                      "--config", str(tmp_path / "body.json"), "--body-push-init", "0.5", "--outfits", _outfit(),
                      *TINY])
     assert trainer.step == steps and trainer.model.config.body_repulsion
-    for key, value in shipped.state_dict().items():
+    for key, value in parent.state_dict().items():
         assert torch.equal(trainer.model.state_dict()[key], value), key
     scene = trainer.cache.get(_outfit(), "female_average", "02_01_walk")
     body_next = scene.body.vertices[6]
@@ -563,7 +563,7 @@ def test_init_from_a_checkpoint_without_a_body_stage_adds_it(tmp_path):
                              scene.skinned[6], body_normals_next=vertex_normals(body_next, scene.body.faces))
     trainer.model.eval()
     with torch.no_grad():
-        p_old, _, _ = shipped.eval()(g, scene.topology)
+        p_old, _, _ = parent.eval()(g, scene.topology)
         p_new, _, ex = trainer.model(g, scene.topology)
     torch.testing.assert_close(p_new, p_old, rtol=1e-5, atol=1e-8)
     rb = ex["body_repulsion"]
@@ -582,7 +582,7 @@ def test_a_frozen_body_stage_keeps_its_initial_push_while_the_rest_trains(tmp_pa
 
     from smln.checkpoint import load_checkpoint
 
-    shipped, card = load_checkpoint(NO_BODY_STAGE)
+    parent, card = load_checkpoint(NO_BODY_STAGE)
     steps = int(card["training"]["steps"])
     (tmp_path / "body.json").write_text(json.dumps({"model": {"body_repulsion": True}}))
     trainer = train(["--out", str(tmp_path / "f"), "--max-steps", str(steps + 3), "--init-from", NO_BODY_STAGE,
@@ -602,7 +602,7 @@ def test_a_frozen_body_stage_keeps_its_initial_push_while_the_rest_trains(tmp_pa
     for i in (0, 2):
         assert torch.equal(trainer.model.body_repulsion.mlp[i].weight, drawn[i].weight)
         assert torch.equal(saved.body_repulsion.mlp[i].bias, drawn[i].bias)
-    moved = [k for k, v in shipped.state_dict().items() if not torch.equal(trainer.model.state_dict()[k], v)]
+    moved = [k for k, v in parent.state_dict().items() if not torch.equal(trainer.model.state_dict()[k], v)]
     assert any(k.startswith("processor.") for k in moved)
 
 
