@@ -13,8 +13,9 @@
 3. the open jacket of tshirt_jacket sinks no more than ``--max-sink-mm`` (the shipped model's) below its
    skinned place at frame 50 of the walk (``bench/layer_sink.py``).
 
-The defaults are the shipped set's since session 35 (r43 A's evaluations beside r47's ablations, and r43 A's 25.5 mm
-sink; session 33's r44 judged with r27's ablations in their place); sessions 20-33 (up to r43) judged against r27
+The defaults are the shipped set's since session 37 (r43 A's evaluations beside r48's ablations, and r43 A's 25.5 mm
+sink; sessions 35-36 had r47's ablations, ``docs/results/r47_*``; session 33's r44 judged with r27's ablations in
+their place); sessions 20-33 (up to r43) judged against r27
 with ``--shipped-seen docs/results/r27_seen_*.json --shipped-held docs/results/r27_held_*.json --max-sink-mm 30.8``;
 sessions 16-20 judged against r22 (shipped sessions 15-19) with ``--shipped-seen docs/results/r22_seen_*.json
 --shipped-held docs/results/r22_held_*.json --max-sink-mm 34.5``, sessions 12-15 against soup14 with ``--shipped-seen
@@ -155,8 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--seen", type=Path, nargs="+", required=True, help="candidate evaluations, seen outfits")
     p.add_argument("--held", type=Path, nargs="+", required=True, help="candidate evaluations, held-out outfits")
-    # the shipped checkpoints' evaluations, per variant: the full model r43 A (session 33), the ablations r47 (35)
-    shipped = ["docs/results/r43_a_{}_full.json"] + [f"docs/results/r47_{{}}_{v}.json" for v in ORDER[1:]]
+    # the shipped checkpoints' evaluations, per variant: the full model r43 A (session 33), the ablations r48 (37)
+    shipped = ["docs/results/r43_a_{}_full.json"] + [f"docs/results/r48_{{}}_{v}.json" for v in ORDER[1:]]
     p.add_argument("--shipped-seen", type=Path, nargs="+", default=[Path(f.format("seen")) for f in shipped])
     p.add_argument("--shipped-held", type=Path, nargs="+", default=[Path(f.format("held")) for f in shipped])
     p.add_argument("--sink-mm", type=float, required=True, help="candidate's jacket sink at frame 50, mm")
