@@ -711,7 +711,10 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
     p.add_argument("--minutes", type=float,
                    help="wall-clock budget of the whole run; it ends cleanly after it (a --resume'd run counts the "
                         "time it has already spent: to go on for 60 more minutes, add 60 to its last budget)")
-    p.add_argument("--max-steps", type=int)
+    p.add_argument("--max-steps", type=int,
+                   help="stop once this many optimiser steps are reached; checked between episodes, so a run ends "
+                        "at the end of the episode that crosses it (at most --rollout-max steps over), which keeps "
+                        "a stopped-and-resumed run bit-for-bit equal to an uninterrupted one")
     p.add_argument("--seed", type=int)
     p.add_argument("--lr", type=float)
     p.add_argument("--lr-halving-steps", type=int, help="steps per halving of the lr (default 20000)")
