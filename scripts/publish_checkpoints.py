@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -147,8 +148,22 @@ def publish(run_dir: Path, variant: str, which: str, dest: Path, results: list[d
         ]
     md += ["", f"Load it with `smln.checkpoint.load_checkpoint(\"{out.as_posix()}\")` (safetensors, no code "
            "is executed)."]
+    dropped = hand_written_sections(out / "README.md", md)
+    if dropped:
+        print(f"{out / 'README.md'}: rewritten without its hand-written section(s) {', '.join(dropped)}; their old "
+              "text is in git (git show HEAD:<path>): update them for this checkpoint and add them again",
+              file=sys.stderr)
     (out / "README.md").write_text("\n".join(md) + "\n")
     return out
+
+
+def hand_written_sections(readme: Path, generated: list[str]) -> list[str]:
+    """The ``## `` headings of an existing model card that the generated card (``generated``, its lines) lacks:
+    sections written by hand (e.g. "## Lineage and budget") that rewriting the card would drop."""
+    if not readme.is_file():
+        return []
+    ours = {line for line in generated if line.startswith("## ")}
+    return [line for line in readme.read_text().splitlines() if line.startswith("## ") and line not in ours]
 
 
 def main() -> None:

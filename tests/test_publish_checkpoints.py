@@ -75,3 +75,20 @@ def test_the_cards_name_the_body_stage_and_whether_it_was_frozen(tmp_path):
     save_checkpoint(run / "best", plain, card={"variant": "full", "training": {"steps": 3, "hardware": "test"}})
     out = publish_checkpoints.publish(run, "full", "best", tmp_path / "dest2", None)
     assert "body stage" not in (out / "README.md").read_text()
+
+
+def test_republishing_names_the_hand_written_sections_it_drops(tmp_path, capsys):
+    torch.manual_seed(3)
+    model = SMLN(SMLNConfig(latent_size=16, schedule=((0, 1), (1, 1), (0, 1))))
+    run = tmp_path / "runs" / "x_baseline"
+    save_checkpoint(run / "last", model, card={"variant": "baseline", "training": {"steps": 5, "hardware": "test"}})
+    out = publish_checkpoints.publish(run, "baseline", "last", tmp_path / "dest", None)
+    assert capsys.readouterr().err == ""  # a first card: nothing to drop
+    readme = out / "README.md"
+    readme.write_text(readme.read_text() + "\n## Lineage and budget\n\nwritten by hand\n")
+    publish_checkpoints.publish(run, "baseline", "last", tmp_path / "dest", None)
+    err = capsys.readouterr().err
+    assert "## Lineage and budget" in err and str(readme) in err
+    assert "written by hand" not in readme.read_text()  # the card is the generated one again
+    publish_checkpoints.publish(run, "baseline", "last", tmp_path / "dest", None)
+    assert capsys.readouterr().err == ""  # generated sections alone are not reported
