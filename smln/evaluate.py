@@ -322,7 +322,9 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
     p.add_argument("--checkpoint", action="append", default=[], help="checkpoint path (repeatable)")
     p.add_argument("--outfits", nargs="+", help="seen | unseen | all | outfit names (default: seen)")
     p.add_argument("--motions", nargs="+", help="train | test | all | clip names (default: test)")
-    p.add_argument("--shape", default=DEFAULT_SHAPE)
+    p.add_argument("--shape", default=DEFAULT_SHAPE,
+                   help="body shape preset: female_average, male_average, tall_heavy or petite_slim "
+                        "(default: %(default)s)")
     p.add_argument("--frames", type=int, help="frames per clip (default: the whole clip)")
     p.add_argument("--edge-length", type=float, default=0.02)
     p.add_argument("--no-skinning", action="store_true", help="leave out the skinning-only row")

@@ -91,7 +91,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--outfits", nargs="+", default=list(SELECTION_OUTFITS), help="training outfits")
     p.add_argument("--motions", nargs="+", default=list(SELECTION_MOTIONS), help="training clips")
     p.add_argument("--frames", type=int, default=80, help="frames per clip (default %(default)s)")
-    p.add_argument("--shape", default=DEFAULT_SHAPE)
+    p.add_argument("--shape", default=DEFAULT_SHAPE,
+                   help="body shape preset: female_average, male_average, tall_heavy or petite_slim "
+                        "(default: %(default)s)")
     p.add_argument("--edge-length", type=float, default=0.035, help="garment resolution, m (default: training's)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", help="write the ranking (and the command's settings) to this file")
