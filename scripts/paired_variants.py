@@ -2,11 +2,13 @@
 
     python scripts/paired_variants.py docs/results/r43_a_seen_full.json docs/results/r48_seen_no_repulsion_layer.json
     python scripts/paired_variants.py A.json B.json --a full --b no_repulsion_layer --key h_coll
+    python scripts/paired_variants.py A1.json B1.json A2.json B2.json   # e.g. one pair per body shape, pooled
 
-The two files are ``smln eval --json`` outputs (``A`` holds method ``--a``, ``B`` method ``--b``; one file may hold
-both). Prints the frame-weighted figure of each, their paired difference A − B over the scenes both evaluated, its
-standard error (:func:`shipping_rule.weighted_paired_difference`), how many scenes A is lower / higher on, and the same
-figures per outfit; then the unweighted per-scene mean and its standard error (every scene alike, as
+The files are ``smln eval --json`` outputs, in pairs (``A`` holds method ``--a``, ``B`` method ``--b``; one file may
+hold both). Several pairs (the same scenes on another body shape, say) are pooled with their scenes kept apart.
+Prints the frame-weighted figure of each, their paired difference A − B over the scenes both evaluated, its standard
+error (:func:`shipping_rule.weighted_paired_difference`), how many scenes A is lower / higher on, and the same figures
+per outfit; then the unweighted per-scene mean and its standard error (every scene alike, as
 ``scripts/shipping_rule.py`` prints its paired differences). The frame-weighted paired mean equals the difference of
 the two frame-weighted means that ``smln eval`` prints when both evaluated the same scenes; the standard error says
 whether that difference is larger than the scene-to-scene spread (docs/RESULTS.md, sessions 37-38).
@@ -56,16 +58,23 @@ def paired_variants(runs_a: list[RunResult], runs_b: list[RunResult], method_a: 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("eval_a", type=Path, help="smln eval --json output holding method --a")
-    p.add_argument("eval_b", type=Path, help="smln eval --json output holding method --b")
+    p.add_argument("evals", type=Path, nargs="+", metavar="A.json B.json",
+                   help="smln eval --json outputs in pairs: one holding method --a, one holding method --b")
     p.add_argument("--a", default="full", help="method of the first file (default: full)")
     p.add_argument("--b", default="no_repulsion_layer", help="method of the second file (default: no_repulsion_layer)")
     p.add_argument("--key", default="l_coll", help="figure: l_coll, h_coll, strain_mean, ... (default: l_coll)")
     args = p.parse_args(argv)
-    runs_a, runs_b = load_runs([args.eval_a]), load_runs([args.eval_b])
+    if len(args.evals) % 2:
+        p.error("give the evaluations in pairs: A.json B.json [A2.json B2.json ...]")
+    runs_a, runs_b = [], []
+    for i, (file_a, file_b) in enumerate(zip(args.evals[::2], args.evals[1::2], strict=True)):
+        tag = (lambda r: r) if len(args.evals) == 2 else (  # several pairs: the same clip of pair i is its own scene
+            lambda r, i=i: dataclasses.replace(r, motion=f"{r.motion} [{i + 1}]"))
+        runs_a += [tag(r) for r in load_runs([file_a])]
+        runs_b += [tag(r) for r in load_runs([file_b])]
     rows = paired_variants(runs_a, runs_b, args.a, args.b, args.key)
     if not rows:
-        raise SystemExit(f"no common scenes of {args.a} in {args.eval_a} and {args.b} in {args.eval_b}")
+        raise SystemExit(f"no common scenes of {args.a} and {args.b} in {' '.join(map(str, args.evals))}")
     s = SCALE.get(args.key, 1.0)
     for group, d in rows.items():
         print(f"{group}: {args.key} {args.a} {d['a'] * s:.3f} - {args.b} {d['b'] * s:.3f} = {d['mean'] * s:+.3f} ± "

@@ -56,3 +56,16 @@ def test_cli_refuses_files_without_common_scenes():
     full = ROOT / "docs/results/r43_a_seen_full.json"
     with pytest.raises(SystemExit, match="no common scenes"):
         paired.main([str(full), str(full)])  # that file holds no no_repulsion_layer rows
+
+
+def test_cli_pools_pairs_with_their_scenes_kept_apart(capsys):
+    files = [str(ROOT / "docs/results" / name) for name in ("r43_a_held_full.json", "r48_held_no_repulsion_layer.json")]
+    assert paired.main(files) == 0
+    single = capsys.readouterr().out.splitlines()[0]
+    assert paired.main(files + files) == 0  # the same pair twice: twice the scenes, the same means
+    pooled = capsys.readouterr().out.splitlines()[0]
+    scenes = int(single.split(" over ")[1].split()[0])
+    assert f" over {2 * scenes} scenes" in pooled
+    assert single.split(" (SE)")[0].rsplit(" ± ", 1)[0] == pooled.split(" (SE)")[0].rsplit(" ± ", 1)[0]
+    with pytest.raises(SystemExit):
+        paired.main(files[:1])  # not a pair
