@@ -1,0 +1,62 @@
+"""bench/layer_push_probe.py: the repulsion push of one frame against the layer beneath (analytic case)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _bench() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("bench_layer_push_probe", ROOT / "bench" / "layer_push_probe.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _grid(z: float) -> tuple[np.ndarray, np.ndarray]:
+    """A flat 3 × 3 grid of 1 cm cells at height z, wound so that its normals point up (+z)."""
+    r, c = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+    vertices = np.stack([c.ravel() * 0.01, r.ravel() * 0.01, np.full(9, z)], axis=1)
+    faces = [(i, i + 1, i + 3) for i in (0, 1, 3, 4)] + [(i + 1, i + 4, i + 3) for i in (0, 1, 3, 4)]
+    return vertices, np.array(faces)
+
+
+def test_shares_against_a_flat_layer_beneath():
+    bench = _bench()
+    inner, inner_faces = _grid(0.0)
+    outer, outer_faces = _grid(0.002)  # 2 mm in front of the layer beneath ...
+    outer[4, 2] = -0.003  # ... but its centre 3 mm behind it
+    x = np.concatenate([inner, outer]).astype(np.float32)
+    faces = torch.as_tensor(np.concatenate([inner_faces, outer_faces + 9]))
+    push = np.zeros_like(x)
+    push[9 + 4] = (0.0, 0.0, 0.001)  # the centre pushed outward
+    push[9 + 0] = (0.0, 0.0, -0.001)  # a corner in front pushed inward
+    figures = dict(zip(bench.FIGURES, bench.frame_figures(x, push, faces, slice(0, 9), slice(9, 18)), strict=True))
+    assert figures["pushed"] == pytest.approx(2 / 9)
+    assert figures["behind"] == pytest.approx(1 / 9)
+    assert figures["pushed_outward"] == pytest.approx(0.5)
+    assert figures["behind_pushed"] == pytest.approx(1.0)
+    assert figures["behind_pushed_outward"] == pytest.approx(1.0)
+    assert figures["median_push"] == pytest.approx(0.001)
+    assert figures["median_depth"] == pytest.approx(0.003, abs=1e-6)
+
+
+def test_nothing_behind_gives_nan_shares_not_errors():
+    bench = _bench()
+    inner, faces = _grid(0.0)
+    outer, _ = _grid(0.004)
+    x = np.concatenate([inner, outer]).astype(np.float32)
+    all_faces = torch.as_tensor(np.concatenate([faces, faces + 9]))
+    figures = bench.frame_figures(x, np.zeros_like(x), all_faces, slice(0, 9), slice(9, 18))
+    assert figures[0] == 0.0 and figures[1] == 0.0
+    assert np.isnan(figures[2:]).all()
