@@ -43,7 +43,8 @@ def paired_variants(runs_a: list[RunResult], runs_b: list[RunResult], method_a: 
     """
     a = [r for r in runs_a if r.method == method_a]
     b = [dataclasses.replace(r, method=method_a) for r in runs_b if r.method == method_b]  # paired by scene
-    common = {(r.outfit, r.motion) for r in a} & {(r.outfit, r.motion) for r in b}
+    scenes_a, scenes_b = {(r.outfit, r.motion) for r in a}, {(r.outfit, r.motion) for r in b}
+    common, unmatched = scenes_a & scenes_b, float(len(scenes_a ^ scenes_b))
     out: dict[str, dict[str, float]] = {}
     if not common:
         return out
@@ -51,7 +52,7 @@ def paired_variants(runs_a: list[RunResult], runs_b: list[RunResult], method_a: 
         ga = [r for r in a if (r.outfit, r.motion) in common and group in ("all", r.outfit)]
         gb = [r for r in b if (r.outfit, r.motion) in common and group in ("all", r.outfit)]
         d = weighted_paired_difference(ga, gb, key, method=method_a, weighted=weighted)
-        d["unmatched"] = float(len({(r.outfit, r.motion) for r in a} ^ {(r.outfit, r.motion) for r in b}))
+        d["unmatched"] = unmatched  # scenes in only one of the two, over all outfits
         out[group] = {"a": aggregate(ga)[method_a][key], "b": aggregate(gb)[method_a][key], **d}
     return out
 
