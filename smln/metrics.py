@@ -40,6 +40,7 @@ import torch
 
 from smln.geometry import PointTree, build_tree
 from smln.geometry.mesh_np import dot3, face_cross, normal_sums_at, vertex_normals_at
+from smln.geometry.surface import closest_surface_points
 from smln.losses.rest import ClothRest
 
 LAYERSNET_MARGIN = 1e-3
@@ -252,13 +253,6 @@ def sequence_metrics(frames: Iterable[FrameMetrics | dict[str, float]]) -> dict[
 # ----------------------------------------------------------------------------------------- surface L-Coll
 
 
-def _boundary_edge_keys(faces: np.ndarray, num_vertices: int) -> np.ndarray:
-    """Sorted int64 keys ``min * V + max`` of the edges used by exactly one face (the open boundary: hems)."""
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
-    keys, counts = np.unique(e[:, 0] * num_vertices + e[:, 1], return_counts=True)
-    return keys[counts == 1]
-
-
 def behind_surface(points: np.ndarray, v: np.ndarray, f: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     """Points behind a triangle surface: closest point c on the triangles (libigl's AABB query through
     gpytoolbox), normal n(c) interpolated from the area-weighted vertex normals (barycentric), behind if
@@ -272,35 +266,16 @@ def behind_surface(points: np.ndarray, v: np.ndarray, f: np.ndarray, tol: float 
     Returns:
         (Q,) bool.
     """
-    import gpytoolbox
-
     points = np.ascontiguousarray(points, dtype=np.float64)
     v = np.ascontiguousarray(v, dtype=np.float64)
     if len(points) == 0 or len(f) == 0:
         return np.zeros(len(points), dtype=bool)
     normals = vertex_normals_at(np.ascontiguousarray(v.T), np.ascontiguousarray(f.T), np.arange(len(v))).T
-    _, tri, bary = gpytoolbox.squared_distance(points, v, f, use_cpp=True)
-    corners = f[np.asarray(tri, dtype=np.int64).reshape(-1)]  # (Q, 3)
-    closest = np.einsum("qk,qkd->qd", bary, v[corners])
-    n_at = np.einsum("qk,qkd->qd", bary, normals[corners])
+    sp = closest_surface_points(points, v, f, tol=tol)
+    closest = np.einsum("qk,qkd->qd", sp.bary, v[sp.corners])
+    n_at = np.einsum("qk,qkd->qd", sp.bary, normals[sp.corners])
     behind = np.einsum("qd,qd->q", points - closest, n_at) < 0.0
-    boundary = _boundary_edge_keys(f, len(v))
-    if len(boundary) == 0:
-        return behind
-    zero = bary < tol
-    nzero = zero.sum(axis=1)
-    on_boundary = np.zeros(len(points), dtype=bool)
-    edge_rows = np.flatnonzero(nzero == 1)  # on the edge opposite the zero corner
-    if len(edge_rows):
-        k = np.argmax(zero[edge_rows], axis=1)
-        a = corners[edge_rows, (k + 1) % 3]
-        b = corners[edge_rows, (k + 2) % 3]
-        on_boundary[edge_rows] = np.isin(np.minimum(a, b) * len(v) + np.maximum(a, b), boundary)
-    vert_rows = np.flatnonzero(nzero >= 2)  # at the corner with the largest coordinate
-    if len(vert_rows):
-        corner = corners[vert_rows, np.argmax(bary[vert_rows], axis=1)]
-        on_boundary[vert_rows] = np.isin(corner, np.unique(np.stack([boundary // len(v), boundary % len(v)])))
-    return behind & ~on_boundary
+    return behind & ~sp.on_boundary
 
 
 def surface_layer_penetration(

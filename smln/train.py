@@ -36,6 +36,7 @@ from smln.geometry import set_threads, vertex_normals
 from smln.graph import LEGACY_BODY_EDGE_DIM
 from smln.losses import BodyStep, LossWeights, total_loss
 from smln.model import SMLN, SMLNConfig
+from smln.model.smln import WEIGHTLESS_FIELDS
 
 NOISE_MODES = ("isotropic", "normal")  # TrainConfig.noise_mode, see Trainer.input_noise
 START_SAMPLINGS = ("uniform", "speed")  # TrainConfig.start_sampling, see EpisodeSampler.start_probabilities
@@ -434,13 +435,16 @@ class Trainer:
         (:func:`~smln.model.migrate.grow`: more hidden layers per MLP or more steps per schedule visit in the run's
         ``model`` config), or lack only the body stage of the repulsion layer
         (:func:`~smln.model.migrate.add_body_repulsion`); the first two start from the checkpoint's function
-        exactly, the last one with the new stage acting as a collision projection."""
+        exactly, the last one with the new stage acting as a collision projection. Fields of
+        :data:`WEIGHTLESS_FIELDS` may differ: the run's config sets them."""
         from smln.checkpoint import load_checkpoint
         from smln.model.migrate import add_body_repulsion, grow, growth_error, widen_body_edges
 
         model, card = load_checkpoint(path)
         model = model.to(self.device)
         old_cfg, new_cfg = model.config.to_dict(), self.model.config.to_dict()
+        for key in WEIGHTLESS_FIELDS:  # how the weights are used, not which there are: the run's own setting holds
+            old_cfg[key] = new_cfg[key]
         if old_cfg == new_cfg:
             self.model.load_state_dict(model.state_dict())
         elif old_cfg == {**new_cfg, "body_normal_features": False}:

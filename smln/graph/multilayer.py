@@ -37,6 +37,7 @@ import torch
 
 from smln.cloth import DT, Cloth
 from smln.geometry import PointTree, build_tree, vertex_normals
+from smln.geometry.surface import boundary_edge_keys
 from smln.graph.hierarchy import HierarchyLevel, anchor_hierarchy, finest_level_of, mesh_edges
 
 NODE_FEATURES: tuple[tuple[str, int], ...] = (
@@ -161,6 +162,16 @@ class GraphTopology:
         self.mesh_static = self._edge_static(self.rest_vectors)
         self.level_static = [self._edge_static(r) for r in self.level_rest_vectors]
         self.static_node = self._static_node_features()
+        self._layer_surfaces: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def layer_surface(self, layer: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer ``layer``'s triangles, (F_k, 3) int64 numpy rows into all V vertices, and the keys of their open
+        boundary (:func:`smln.geometry.surface.boundary_edge_keys`); computed once per layer."""
+        if layer not in self._layer_surfaces:
+            faces = self.faces.cpu().numpy()
+            faces = np.ascontiguousarray(faces[self.layer_index.cpu().numpy()[faces[:, 0]] == layer])
+            self._layer_surfaces[layer] = (faces, boundary_edge_keys(faces, self.num_vertices))
+        return self._layer_surfaces[layer]
 
     @classmethod
     def from_cloth(

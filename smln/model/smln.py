@@ -11,6 +11,7 @@ from torch import nn
 
 from smln.cloth import DT, GRAVITY
 from smln.geometry import PointTree
+from smln.geometry.surface import closest_surface_points
 from smln.graph.hierarchy import check_rules
 from smln.graph.multilayer import (
     BODY_EDGE_DIM,
@@ -26,6 +27,13 @@ from smln.model.mlp import MLP
 from smln.model.normalizer import Normalizer
 from smln.model.processor import Processor
 from smln.model.repulsion import RepulsionLayer
+
+REPULSION_PAIRINGS = ("vertex", "deeper")
+"""Values of :attr:`SMLNConfig.repulsion_pairing`."""
+
+WEIGHTLESS_FIELDS = ("repulsion_pairing",)
+""":class:`SMLNConfig` fields that change how the weights are used, not which weights there are: a checkpoint's
+weights load into a model that differs from its config only there (``smln train --init-from``)."""
 
 BODY_REPULSION_MAX_DEPTH = 0.02
 """The body stage of the repulsion layer leaves garment vertices deeper than this behind their nearest body vertex's
@@ -81,6 +89,18 @@ class SMLNConfig:
         body_repulsion_threshold: the body stage's activation distance along the body normal, m.
         repulsion_threshold: repulsion activation distance along the inner normal, m.
         repulsion_hidden: repulsion MLP width (paper: 32).
+        repulsion_pairing: how the layer reads an outer vertex against the layer beneath. ``"vertex"`` (paper
+            Eq. 14): its nearest inner vertex of step t (the virtual edge) and that vertex's normal at x̂.
+            ``"deeper"`` (our extension): also the closest point of the inner layer's *triangles* at step t,
+            carried to x̂ by its barycentric weights, with the interpolated vertex normal; whichever of the two
+            reads the vertex deeper (smaller E_r) is the pair that pushes it. A closest point on the inner
+            layer's hem is no surface reading (the vertex lies beyond the hem), nor is one whose normal faces
+            away from the nearest inner vertex's (the back of a fold: its reading would push the vertex inward,
+            toward the body). The vertex reading alone misses an
+            outer vertex that sits in front of its nearest inner vertex's tangent plane but behind the inner
+            surface between vertices (a fold, a concave patch; the point-to-triangle L-Coll). The same weights
+            serve both (the MLP's inputs have the same meaning). Cards written before this field existed load
+            with ``"vertex"``.
         output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
             output statistics from near-rigid motion have ~0 vertical variance and would freeze Z.
         normalizer_accumulations: training forward calls that update the input statistics, then frozen.
@@ -101,6 +121,7 @@ class SMLNConfig:
     use_repulsion_layer: bool = True
     repulsion_threshold: float = 0.005
     repulsion_hidden: int = 32
+    repulsion_pairing: str = "vertex"
     body_repulsion: bool = False
     body_repulsion_threshold: float = 0.003
     output_scale: float = GRAVITY * DT * DT
@@ -119,6 +140,8 @@ class SMLNConfig:
             raise ValueError("schedule visits a level above `levels`")
         if self.body_repulsion and not (self.use_repulsion_layer and self.body_normal_features):
             raise ValueError("body_repulsion needs use_repulsion_layer and body_normal_features")
+        if self.repulsion_pairing not in REPULSION_PAIRINGS:
+            raise ValueError(f"repulsion_pairing must be one of {REPULSION_PAIRINGS}, got {self.repulsion_pairing!r}")
         if not self.body_repulsion_threshold > 0:
             raise ValueError(f"body_repulsion_threshold must be > 0 m, got {self.body_repulsion_threshold}")
 
@@ -283,10 +306,51 @@ class SMLN(nn.Module):
         stages: list[dict[str, torch.Tensor]] = []
         for k in range(1, max(topology.num_layers, 2)):  # one stage per adjacent layer pair (1-2 in practice)
             x_k = x_hat + a
-            a_k, rep = self.repulsion(graph.x_cur, x_k, vertex_normals(x_k, topology.faces), pairs[:, outer_layer == k])
+            n_k = vertex_normals(x_k, topology.faces)
+            stage = pairs[:, outer_layer == k]
+            if self.config.repulsion_pairing == "deeper" and stage.shape[1] > 0:
+                a_k, rep = self._push_deeper(topology, graph.x_cur, x_k, n_k, stage, k - 1)
+            else:
+                a_k, rep = self.repulsion(graph.x_cur, x_k, n_k, stage)
             a = a + a_k * free
             stages.append(rep)
         return a, {key: torch.cat([r[key] for r in stages], dim=-1) for key in stages[0]}
+
+    def _push_deeper(self, topology: GraphTopology, x_cur: torch.Tensor, x_k: torch.Tensor, n_k: torch.Tensor,
+                     stage: torch.Tensor, inner_layer: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """One stage with ``repulsion_pairing="deeper"``: each pair (outer i, nearest inner vertex j) is read
+        against j and against the closest point c of the inner layer's triangles at step t; the deeper reading
+        pushes.
+
+        Args:
+            x_cur: (V, 3) positions at t, m. x_k: (V, 3) predicted positions so far, m. n_k: (V, 3) unit
+                vertex normals at ``x_k``. stage: (2, P) the stage's pairs (outer i, inner j), P >= 1.
+            inner_layer: the layer beneath the stage's outer vertices.
+
+        Returns:
+            as :meth:`RepulsionLayer.forward` (``active_pairs`` names j also where the surface point pushed).
+        """
+        i, j = stage[0], stage[1]
+        faces, boundary = topology.layer_surface(inner_layer)
+        x_np = x_cur.detach().cpu().numpy()
+        sp = closest_surface_points(x_np[i.cpu().numpy()], x_np, faces, boundary)
+        corners = torch.as_tensor(sp.corners, device=x_k.device)
+        w = torch.as_tensor(sp.bary, dtype=x_k.dtype, device=x_k.device).unsqueeze(-1)
+        c_cur = (w * x_cur[corners]).sum(1)
+        c_next = (w * x_k[corners]).sum(1)
+        n_c = nn.functional.normalize((w * n_k[corners]).sum(1), dim=-1)
+        e_surface = ((x_k[i] - c_next) * n_c).sum(-1)
+        e_vertex = ((x_k[i] - x_k[j]) * n_k[j]).sum(-1)
+        facing = (n_c * n_k[j]).sum(-1) > 0.0
+        use = torch.as_tensor(~sp.on_boundary, device=x_k.device) & (e_surface < e_vertex) & facing
+        use = use.unsqueeze(-1)
+        inner_cur = torch.where(use, c_cur, x_cur[j])
+        inner_next = torch.where(use, c_next, x_k[j])
+        normal = torch.where(use, n_c, n_k[j])
+        a, ex = self.repulsion.push(i, x_cur[i], x_k[i], inner_cur, inner_next, normal, x_k.shape[0])
+        ex["active_pairs"] = torch.stack([i[ex["active"]], j[ex["active"]]])
+        del ex["active"]
+        return a, ex
 
     def step(
         self,
