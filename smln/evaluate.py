@@ -23,6 +23,7 @@ from smln.data_sampling import make_scene
 from smln.geometry import set_threads
 from smln.losses import ClothRest
 from smln.metrics import frame_metrics, sequence_metrics
+from smln.model.smln import REPULSION_PAIRINGS
 from smln.rollout import MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, SKIN_GUARDS, RolloutFrame
 
 TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "offset_rms", "ms_model",
@@ -272,10 +273,28 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-body-distance", type=float, default=MAX_BODY_DISTANCE, metavar="M",
                    help="a frame with a garment vertex farther than M meters from the body falls back to skinning "
                         "(default %(default)s)")
+    p.add_argument("--repulsion-pairing", choices=REPULSION_PAIRINGS,
+                   help="how the repulsion layer reads an outer vertex against the layer beneath, overriding the "
+                        "checkpoint's: vertex (paper Eq. 14, the nearest inner vertex) or deeper (also the closest "
+                        "inner triangle point; SMLNConfig.repulsion_pairing); models without the layer are unchanged")
     p.add_argument("--skin-guard", default="always", choices=SKIN_GUARDS,
                    help="always: --max-skin-distance alone means divergence; symptomatic: only with a symptom of a "
                         "tangle (mean strain > 10 %%, H-Coll > 5 %%) or beyond twice that distance "
                         "(smln.rollout.SKIN_GUARDS)")
+
+
+def apply_repulsion_pairing(model, pairing: str | None) -> bool:
+    """Set a loaded model's ``repulsion_pairing`` (``--repulsion-pairing``; None: leave the checkpoint's).
+
+    Returns:
+        True if the model has a repulsion layer and its reading changed.
+    """
+    if pairing is None or not model.config.use_repulsion_layer or model.config.repulsion_pairing == pairing:
+        return False
+    if pairing not in REPULSION_PAIRINGS:
+        raise ValueError(f"repulsion pairing must be one of {REPULSION_PAIRINGS}, got {pairing!r}")
+    model.config.repulsion_pairing = pairing
+    return True
 
 
 def rollout_guards(a: argparse.Namespace) -> dict[str, float | str]:
@@ -365,6 +384,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
             name += f" [guard skin {a.max_skin_distance:g} m, body {a.max_body_distance:g} m]"
         if a.skin_guard != "always":
             name += f" [skin guard {a.skin_guard}]"
+        if apply_repulsion_pairing(model, a.repulsion_pairing):
+            name += f" [{a.repulsion_pairing} pairing]"
         if name in methods:  # two checkpoints of one variant (e.g. an old and a new `full`): name them by path
             name = f"{name} ({ck})"
         methods[name] = model

@@ -16,7 +16,7 @@ def main(args: argparse.Namespace) -> None:
 
 def run(argv: list[str] | None = None) -> Path:
     from smln.data_sampling import make_scene
-    from smln.evaluate import add_model_rollout_options, method_frames, rollout_guards
+    from smln.evaluate import add_model_rollout_options, apply_repulsion_pairing, method_frames, rollout_guards
     from smln.export import save_rollout_npz
 
     p = argparse.ArgumentParser(prog="smln rollout", description=__doc__)
@@ -46,6 +46,7 @@ def run(argv: list[str] | None = None) -> Path:
         from smln.checkpoint import load_checkpoint
 
         model, _ = load_checkpoint(a.checkpoint)
+        apply_repulsion_pairing(model, a.repulsion_pairing)
     kind = "model" if model is not None else ("solver" if a.solver else "skinning")
     scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=a.frames)
     t0 = time.time()

@@ -104,3 +104,15 @@ def test_config_rejects_an_unknown_pairing_and_old_cards_read_vertex() -> None:
     d = SMLNConfig().to_dict()
     del d["repulsion_pairing"]
     assert SMLNConfig.from_dict(d).repulsion_pairing == "vertex"
+
+
+def test_the_cli_override_changes_only_models_with_the_layer() -> None:
+    from smln.evaluate import apply_repulsion_pairing
+
+    full, ablation = SMLN(SMLNConfig()), SMLN(SMLNConfig(use_repulsion_layer=False))
+    assert apply_repulsion_pairing(full, None) is False and full.config.repulsion_pairing == "vertex"
+    assert apply_repulsion_pairing(full, "deeper") is True and full.config.repulsion_pairing == "deeper"
+    assert apply_repulsion_pairing(full, "deeper") is False  # already so
+    assert apply_repulsion_pairing(ablation, "deeper") is False and ablation.config.repulsion_pairing == "vertex"
+    with pytest.raises(ValueError, match="pairing"):
+        apply_repulsion_pairing(full, "triangle")
