@@ -14,7 +14,7 @@ import viser
 
 from app.extras import MAX_ROLLOUT_UPLOAD_BYTES
 from app.scene import LAYER_COLOURS, Display
-from app.sources import PROJECTIONS, VARIANT_LABELS, VARIANTS, Catalog, Setting
+from app.sources import PROJECTIONS, READINGS, VARIANT_LABELS, VARIANTS, Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, MAX_OBJ_BYTES
 
 SPEEDS: tuple[str, ...] = ("0.25x", "0.5x", "1x", "2x")
@@ -59,6 +59,7 @@ class Controls:
     variants_folder: Any = None
     upload_rollout: Any = None
     projection: Any = None
+    reading: Any = None
 
     def outfit_label(self, key: str) -> str | None:
         return next((lab for lab, k in self.outfit_keys.items() if k == key), None)
@@ -88,6 +89,11 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
             "Collision projection", list(PROJECTIONS), initial_value=setting.projection,
             hint="off: the learned model alone (as evaluated in the paper); body / body+layers: move penetrating "
                  "vertices back out after every network step (smln.projection)")
+        reading = gui.add_dropdown(
+            "Repulsion layer reading", list(READINGS), initial_value=setting.reading,
+            hint="checkpoint: as its card says (every shipped one: vertex); vertex: each outer vertex against its "
+                 "nearest inner vertex (paper Eq. 14); deeper: also against the closest inner triangle point, the "
+                 "deeper reading pushes (SMLNConfig.repulsion_pairing); same weights")
         upload_bvh = gui.add_upload_button("Upload BVH clip", icon=None, mime_type=".bvh",
                                            hint=f"CMU-style BVH, at most {MAX_BVH_BYTES // 2**20} MB")
         upload_obj = gui.add_upload_button("Upload OBJ garment", icon=None, mime_type=".obj",
@@ -142,7 +148,8 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
                     stream_fps, progress, status, follow, reset_camera, boxes, layer_pen,
                     body_pen, vectors, vector_scale, vector_threshold, wireframe, body, layers_folder,
                     metrics_folder, export_variant, downloads, outfit_keys, clip_keys,
-                    variants_folder=variants_folder, upload_rollout=upload_rollout, projection=projection)
+                    variants_folder=variants_folder, upload_rollout=upload_rollout, projection=projection,
+                    reading=reading)
 
 
 def _label(keys: dict[str, str], key: str) -> str:

@@ -31,7 +31,7 @@ from app.extras import ExtraRollout, ExtraRolloutError, ExtraStore, is_extra
 from app.plots import MetricsPanel
 from app.rollout_worker import FrameCache, RolloutWorker
 from app.scene import Display, SceneView, ViewSpec
-from app.sources import FPS, MAX_FRAMES, PROJECTIONS, VARIANT_LABELS, VARIANTS, Catalog, Scenario, Setting
+from app.sources import FPS, MAX_FRAMES, PROJECTIONS, READINGS, VARIANT_LABELS, VARIANTS, Catalog, Scenario, Setting
 from app.uploads import UploadError, UploadStore
 from smln.export import export_bytes, rollout_from_frames
 
@@ -146,12 +146,13 @@ class ViewerApp:
         return list(self._variants)
 
     def set_setting(self, outfit: str | None = None, clip: str | None = None, shape: str | None = None,
-                    projection: str | None = None) -> bool:
-        """Change the outfit / clip / body shape (keys) / collision projection; restarts the rollouts. Returns True
-        if it changed."""
+                    projection: str | None = None, reading: str | None = None) -> bool:
+        """Change the outfit / clip / body shape (keys) / collision projection / repulsion-layer reading; restarts
+        the rollouts. Returns True if it changed."""
         with self._lock:
             cur = self.worker.setting or self.catalog.default_setting()
-            new = Setting(outfit or cur.outfit, clip or cur.clip, shape or cur.shape, projection or cur.projection)
+            new = Setting(outfit or cur.outfit, clip or cur.clip, shape or cur.shape, projection or cur.projection,
+                          reading or cur.reading)
             if new == cur:
                 return False
             if new.outfit not in dict((k, 1) for _, k in self.catalog.outfits()):
@@ -162,6 +163,8 @@ class ViewerApp:
                 raise ValueError(f"unknown body shape {new.shape!r}")
             if new.projection not in PROJECTIONS:
                 raise ValueError(f"unknown collision projection {new.projection!r} (one of {', '.join(PROJECTIONS)})")
+            if new.reading not in READINGS:
+                raise ValueError(f"unknown repulsion-layer reading {new.reading!r} (one of {', '.join(READINGS)})")
             self.frame_index = 0
             self._needs_camera_reset = True
             self.worker.configure(new, tuple(self._computed()))
@@ -276,13 +279,15 @@ class ViewerApp:
         frames = list(cache.frames)
         s = scenario.setting
         meta = {"outfit": s.outfit, "clip": s.clip, "shape": s.shape, "variant": variant, "complete": cache.done,
-                "projection": s.projection}
+                "projection": s.projection, "reading": s.reading}
         r = rollout_from_frames(frames, scenario.cloth.faces, scenario.cloth.layer_index, scenario.body_faces,
                                 scenario.layer_names, fps=FPS, meta=meta)
         suffix, data = export_bytes(r, fmt, include_body=fmt == "glb")
         stem = "_".join(x.replace("upload:", "upload-").replace(":", "-") for x in (s.outfit, s.clip, variant))
         if s.projection != "off":
             stem += "_projection-" + s.projection.replace("+", "-")
+        if s.reading != "checkpoint":
+            stem += "_reading-" + s.reading
         return stem + suffix, data
 
     def notify(self, title: str, body: str, client: Any = None, error: bool = True) -> None:
@@ -309,6 +314,8 @@ class ViewerApp:
         c.clip.on_update(self._on_clip)
         c.shape.on_update(self._on_shape)
         c.projection.on_update(self._on_projection)
+        if c.reading is not None:
+            c.reading.on_update(self._on_reading)
         c.upload_bvh.on_upload(self._on_upload_bvh)
         c.upload_obj.on_upload(self._on_upload_obj)
         c.upload_rollout.on_upload(self._on_upload_rollout)
@@ -347,6 +354,11 @@ class ViewerApp:
         if event.client is not None:
             self._apply_picker(projection=self.controls.projection.value)
 
+    @_guarded
+    def _on_reading(self, event: Any) -> None:
+        if event.client is not None:
+            self._apply_picker(reading=self.controls.reading.value)
+
     def _apply_picker(self, **kwargs: str) -> None:
         try:
             self.set_setting(**kwargs)
@@ -369,6 +381,8 @@ class ViewerApp:
             c.shape.value = s.shape
         if c.projection is not None and c.projection.value != s.projection:
             c.projection.value = s.projection
+        if c.reading is not None and c.reading.value != s.reading:
+            c.reading.value = s.reading
 
     @_guarded
     def _on_upload_bvh(self, event: Any) -> None:

@@ -8,6 +8,7 @@ A *setting* (outfit, clip, body shape) is loaded once into a :class:`Scenario` (
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
@@ -27,6 +28,10 @@ from smln.rollout import RolloutFrame, rollout
 PROJECTIONS: tuple[str, ...] = ("off", "body", "body+layers")
 """Collision-projection choices of :class:`Setting` (``smln.projection``)."""
 
+READINGS: tuple[str, ...] = ("checkpoint", "vertex", "deeper")
+"""Repulsion-layer readings of :class:`Setting`: the checkpoint's own, or ``SMLNConfig.repulsion_pairing`` set to one
+of its values for the session (same weights; models without the layer are unchanged)."""
+
 VARIANTS: tuple[str, ...] = ("full", "no_repulsion_layer", "baseline", "skinning")
 """Variant keys in display order: the three checkpoints of the paper's ablation, then plain skinning."""
 
@@ -44,16 +49,20 @@ MAX_FRAMES = 300
 
 @dataclass(frozen=True)
 class Setting:
-    """What is animated: an outfit key, a clip key, a body-shape preset and the collision projection (strings).
+    """What is animated: an outfit key, a clip key, a body-shape preset, the collision projection and the repulsion
+    layer's reading (strings).
 
     ``projection`` is one of :data:`PROJECTIONS`: "off" (the learned model alone, as evaluated in the paper),
-    "body" or "body+layers" (the post-step of :mod:`smln.projection` after every network step).
+    "body" or "body+layers" (the post-step of :mod:`smln.projection` after every network step). ``reading`` is one
+    of :data:`READINGS`: "checkpoint" (as the card says), "vertex" (paper Eq. 14) or "deeper" (also the closest
+    inner triangle point, ``SMLNConfig.repulsion_pairing``).
     """
 
     outfit: str
     clip: str
     shape: str = DEFAULT_SHAPE
     projection: str = "off"
+    reading: str = "checkpoint"
 
 
 @dataclass
@@ -188,7 +197,7 @@ class Catalog:
         self._build, self._outfits = builder if builder is not None else outfit_builder(edge_length)
         self.checkpoints = find_checkpoints(self.checkpoint_dir)
         self.checkpoint_errors: dict[str, str] = {}
-        self._models: dict[str, Any] = {}
+        self._models: dict[str | tuple[str, str], Any] = {}  # variant, or (variant, reading) for a re-read copy
         self._cloths: OrderedDict[tuple[str, str], Cloth] = OrderedDict()
         self._sequences: OrderedDict[tuple[str, str], BodySequence] = OrderedDict()
         self._lock = threading.RLock()
@@ -256,15 +265,28 @@ class Catalog:
         return Scenario(setting, cloth, seq, seq.faces.numpy().astype(np.int64), layer_faces, slices,
                         min(seq.num_frames, self.max_frames))
 
-    def model(self, variant: str) -> Any:
-        """The checkpoint's model for a variant (loaded once)."""
+    def model(self, variant: str, reading: str = "checkpoint") -> Any:
+        """The checkpoint's model for a variant (loaded once), read with ``reading`` (:data:`READINGS`; a copy of
+        the loaded model when it changes the checkpoint's reading)."""
         from smln.checkpoint import load_checkpoint
+        from smln.evaluate import apply_repulsion_pairing
 
+        if reading not in READINGS:
+            raise ValueError(f"unknown repulsion-layer reading {reading!r} (one of {', '.join(READINGS)})")
         with self._lock:
             if variant not in self._models:
                 model, _card = load_checkpoint(self.checkpoints[variant], map_location=self.device)
                 self._models[variant] = model
-            return self._models[variant]
+            base = self._models[variant]
+            if reading == "checkpoint" or not base.config.use_repulsion_layer \
+                    or base.config.repulsion_pairing == reading:
+                return base
+            key = (variant, reading)
+            if key not in self._models:
+                model = copy.deepcopy(base)
+                apply_repulsion_pairing(model, reading)
+                self._models[key] = model
+            return self._models[key]
 
     def frames(self, variant: str, scenario: Scenario) -> Iterator[RolloutFrame]:
         """The frame iterator of one variant on a scenario (model variants fall back to skinning on divergence
@@ -274,10 +296,12 @@ class Catalog:
         if variant not in self.checkpoints:
             raise ValueError(f"no checkpoint for variant {variant!r} under {self.checkpoint_dir}")
         proj = scenario.setting.projection
-        return rollout(self.model(variant), scenario.cloth, scenario.sequence, scenario.body_faces,
+        model = self.model(variant, scenario.setting.reading)
+        return rollout(model, scenario.cloth, scenario.sequence, scenario.body_faces,
                        num_frames=scenario.num_frames, device=self.device, fallback=True, precision=self.precision,
                        compiled=self.compiled, project_body=proj in ("body", "body+layers"),
                        project_layers=proj == "body+layers")
 
 
-__all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario", "Setting"]
+__all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "READINGS", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario",
+           "Setting"]

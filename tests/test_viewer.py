@@ -128,6 +128,31 @@ def test_viewer_collision_projection_setting(tmp_path):
         app.stop()
 
 
+def test_viewer_repulsion_layer_reading_setting(tmp_path):
+    """The reading picker re-runs the full model with repulsion_pairing set on a copy (the loaded checkpoint keeps
+    its own reading); a model without the layer is left as it is; a bad value is refused."""
+    from app.server import ViewerApp
+
+    ckpt = tiny_checkpoints(tmp_path / "ckpt")
+    app = ViewerApp(port=free_port(), checkpoint_dir=ckpt, max_frames=4, variants=["full", "baseline"])
+    try:
+        assert app.worker.wait_frames(4, timeout=90)
+        assert app.set_setting(reading="deeper") is True
+        assert app.controls.reading.value == "deeper"
+        assert app.worker.wait_frames(4, timeout=90)
+        assert app.worker.scenario.setting.reading == "deeper"
+        assert app.catalog.model("full", "deeper").config.repulsion_pairing == "deeper"
+        assert app.catalog.model("full").config.repulsion_pairing == "vertex"  # the checkpoint's own, untouched
+        assert app.catalog.model("baseline", "deeper") is app.catalog.model("baseline")  # no layer: no copy
+        name, _ = app.export("full", "npz")
+        assert name.endswith("_full_reading-deeper.npz")
+        with pytest.raises(ValueError, match="reading"):
+            app.set_setting(reading="sideways")
+        assert app.setting.reading == "deeper"
+    finally:
+        app.stop()
+
+
 def test_uploads_are_validated(tmp_path):
     store = UploadStore(tmp_path / "up")
     with pytest.raises(UploadError, match="expected a .bvh"):
