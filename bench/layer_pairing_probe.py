@@ -16,6 +16,9 @@ the network's own prediction are kept):
   L-Coll reads it (:func:`smln.metrics.behind_surface`).
 - ``deeper``: ``SMLNConfig.repulsion_pairing = "deeper"``: both readings per outer vertex, the one that reads it
   deeper pushes (a surface point on the hem or on the back of a fold is no reading).
+- ``vertex_body_guard``, ``deeper_body_guard``: those two readings, and the garment stage's push of a vertex with a
+  body world edge loses its component toward the body (along its nearest body vertex's normal): the stage can no
+  longer push a vertex squeezed between a fold of the layer beneath and the body into the body.
 
 Writes one ``smln eval --json`` file per mode (method name = mode) with the point-to-triangle metrics, so that
 ``scripts/paired_variants.py A.json B.json --a surface --b vertex --key l_coll_surface`` pairs them.
@@ -37,7 +40,7 @@ from smln.geometry import set_threads
 from smln.geometry.mesh import vertex_normals
 from smln.geometry.surface import closest_surface_points
 
-MODES = ("vertex", "off", "surface", "deeper")
+MODES = ("vertex", "off", "surface", "deeper", "vertex_body_guard", "deeper_body_guard")
 
 
 def _off_cascade(self, topology, graph, x_hat, free, a_start=None):
@@ -77,6 +80,22 @@ def _surface_cascade(self, topology, graph, x_hat, free, a_start=None):
     return a, {key: torch.cat([s[key] for s in stages], dim=-1) for key in stages[0]}
 
 
+def _body_guarded(cascade):
+    """Wrap a garment-stage cascade: the garment stages' push (not the body stage's) of each vertex with a body
+    world edge keeps no component toward the body."""
+
+    def guarded(self, topology, graph, x_hat, free, a_start=None):
+        a, ex = cascade(topology, graph, x_hat, free, a_start)
+        start = torch.zeros_like(a) if a_start is None else a_start
+        a_layer = a - start
+        q, f = graph.body_receivers, graph.body_features
+        n_body = torch.zeros_like(a).index_copy(0, q, f[:, 9:12])
+        inward = (a_layer * n_body).sum(-1, keepdim=True).clamp(max=0.0)
+        return start + a_layer - inward * n_body, ex
+
+    return guarded
+
+
 def with_mode(model, mode: str):
     """A copy of ``model`` whose garment stage runs in ``mode`` (:data:`MODES`)."""
     m = copy.deepcopy(model)
@@ -88,6 +107,9 @@ def with_mode(model, mode: str):
         m.config.repulsion_pairing = "deeper"
     elif mode == "vertex":
         m.config.repulsion_pairing = "vertex"
+    elif mode.endswith("_body_guard"):
+        m.config.repulsion_pairing = mode.removesuffix("_body_guard")
+        m._cascade_repulsion = types.MethodType(_body_guarded(m._cascade_repulsion), m)
     else:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     return m

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 
-_spec = importlib.util.spec_from_file_location("hcoll_depth", Path(__file__).parents[1] / "bench" / "hcoll_depth.py")
-hcoll_depth = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(hcoll_depth)
+from tests.script_loader import load_script
+
+hcoll_depth = load_script("bench/hcoll_depth.py")
 
 
 def test_profile_counts_depths_and_the_contact_band_per_layer():

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 
-_spec = importlib.util.spec_from_file_location("hcoll_speed", Path(__file__).parents[1] / "bench" / "hcoll_speed.py")
-hcoll_speed = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(hcoll_speed)
+from tests.script_loader import load_script
+
+hcoll_speed = load_script("bench/hcoll_speed.py")
 
 
 def test_body_speed_of_a_translating_body():

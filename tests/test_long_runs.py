@@ -8,13 +8,13 @@ with two outfits (tops and bottoms), in well under a minute.
 
 from __future__ import annotations
 
-import importlib.util
 import os
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+
+from tests.script_loader import load_script
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINT = Path(os.environ.get("SMLN_LONG_RUN_CHECKPOINT", ROOT / "checkpoints" / "full"))
@@ -23,12 +23,7 @@ CLIP = "09_06_run"
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_long_runs", ROOT / "bench" / "long_runs.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses resolve annotations through sys.modules
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench/long_runs.py")
 
 
 @pytest.fixture(scope="module")

@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
 from smln.evaluate import RunResult, aggregate, load_results
+from tests.script_loader import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "paired_variants.py"
-spec = importlib.util.spec_from_file_location("paired_variants", SCRIPT)
-paired = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(paired)
+paired = load_script("scripts/paired_variants.py")
 
 
 def _run(method: str, outfit: str, motion: str, l_coll: float, frames: int) -> RunResult:

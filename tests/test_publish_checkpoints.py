@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,11 +9,10 @@ import torch
 
 from smln.checkpoint import load_checkpoint, save_checkpoint
 from smln.model import SMLN, SMLNConfig
+from tests.script_loader import load_script
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "publish_checkpoints.py"
-spec = importlib.util.spec_from_file_location("publish_checkpoints", SCRIPT)
-publish_checkpoints = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(publish_checkpoints)
+publish_checkpoints = load_script("scripts/publish_checkpoints.py")
 
 
 def test_publish_to_an_experimental_folder(tmp_path):

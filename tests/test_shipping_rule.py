@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
+from tests.script_loader import load_script
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "shipping_rule.py"
-spec = importlib.util.spec_from_file_location("shipping_rule", SCRIPT)
-rule = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(rule)
+rule = load_script("scripts/shipping_rule.py")
 
 
 def _figures(l_full: float, l_nr: float, l_base: float, strain: float = 0.05) -> dict[str, dict[str, float]]:
