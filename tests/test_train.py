@@ -196,6 +196,27 @@ def test_init_from_a_checkpoint_without_body_normals_widens_it(tmp_path):
 
 
 @pytest.mark.slow
+def test_init_from_across_the_repulsion_layer_reading_keeps_the_weights(tmp_path):
+    """repulsion_pairing changes how the weights are used, not which there are: a run that reads the layer with the
+    surface reading starts from the shipped (vertex-reading) checkpoint's weights and saves its own reading."""
+    import json
+
+    from smln.checkpoint import load_checkpoint
+
+    shipped, card = load_checkpoint("checkpoints/full")
+    steps = int(card["training"]["steps"])
+    (tmp_path / "deeper.json").write_text(json.dumps({"model": {**shipped.config.to_dict(),
+                                                                "repulsion_pairing": "deeper"}}))
+    trainer = train(["--out", str(tmp_path / "d"), "--max-steps", str(steps), "--init-from", "checkpoints/full",
+                     "--config", str(tmp_path / "deeper.json"), "--outfits", _outfit(), *TINY])
+    assert trainer.step == steps and trainer.model.config.repulsion_pairing == "deeper"
+    for key, value in shipped.state_dict().items():
+        assert torch.equal(trainer.model.state_dict()[key], value), key
+    saved, _ = load_checkpoint(tmp_path / "d" / "last")
+    assert saved.config.repulsion_pairing == "deeper"
+
+
+@pytest.mark.slow
 def test_init_from_the_shipped_checkpoint_into_a_deeper_model_keeps_its_predictions(tmp_path):
     """A run whose model config asks for two hidden layers per MLP and more anchor-level steps, initialised from the
     shipped full checkpoint (one hidden layer), predicts what that checkpoint predicts on a real training state."""

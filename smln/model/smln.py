@@ -96,11 +96,11 @@ class SMLNConfig:
             reads the vertex deeper (smaller E_r) is the pair that pushes it. A closest point on the inner
             layer's hem is no surface reading (the vertex lies beyond the hem), nor is one whose normal faces
             away from the nearest inner vertex's (the back of a fold: its reading would push the vertex inward,
-            toward the body). The vertex reading alone misses an
-            outer vertex that sits in front of its nearest inner vertex's tangent plane but behind the inner
-            surface between vertices (a fold, a concave patch; the point-to-triangle L-Coll). The same weights
-            serve both (the MLP's inputs have the same meaning). Cards written before this field existed load
-            with ``"vertex"``.
+            toward the body). The vertex reading alone misses an outer vertex that sits in front of its nearest
+            inner vertex's tangent plane but behind the inner surface between vertices (a fold, a concave patch;
+            the point-to-triangle L-Coll). The same weights serve both (the MLP's inputs have the same meaning).
+            Costs a closest-point query per layer pair and step (~1.2x per frame at 2 cm, bench/rollout_speed.py).
+            Cards written before this field existed load with ``"vertex"``.
         output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
             output statistics from near-rigid motion have ~0 vertical variance and would freeze Z.
         normalizer_accumulations: training forward calls that update the input statistics, then frozen.
