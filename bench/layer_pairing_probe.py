@@ -1,4 +1,4 @@
-"""Diagnostic: the repulsion layer's garment stage read three ways, on the same checkpoint and clips.
+"""Diagnostic: the repulsion layer's garment stage read several ways, on the same checkpoint and clips.
 
     python bench/layer_pairing_probe.py --checkpoint checkpoints/full --outfits tshirt_jacket \\
         --motions 05_01_walk 09_06_run --frames 150 --json-dir runs/pairing
