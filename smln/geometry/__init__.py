@@ -7,6 +7,10 @@ paths of the losses.
 
 Proximity (pykdtree via :class:`PointTree`; indices without gradient, distances differentiable): :func:`build_tree`,
 :func:`nearest_vertices`, :func:`signed_distance_along_normals`, :func:`close_pairs`; :func:`set_threads`.
+
+Surface (numpy, gpytoolbox's AABB query; :mod:`smln.geometry.surface`): :func:`closest_surface_points` (corners and
+barycentric weights of the closest triangle point, and whether it lies on the open boundary),
+:func:`boundary_edge_keys`.
 """
 
 from smln.geometry.mesh import (
@@ -38,6 +42,7 @@ from smln.geometry.proximity import (
     set_threads,
     signed_distance_along_normals,
 )
+from smln.geometry.surface import SurfacePoints, boundary_edge_keys, closest_surface_points
 
 __all__ = [
     "coordinate_major",
@@ -52,6 +57,9 @@ __all__ = [
     "vertex_normals_cm",
     "InteriorEdges",
     "PointTree",
+    "SurfacePoints",
+    "boundary_edge_keys",
+    "closest_surface_points",
     "build_tree",
     "close_pairs",
     "dihedral_angles",
