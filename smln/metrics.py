@@ -275,7 +275,7 @@ def behind_surface(points: np.ndarray, v: np.ndarray, f: np.ndarray, tol: float 
     closest = np.einsum("qk,qkd->qd", sp.bary, v[sp.corners])
     n_at = np.einsum("qk,qkd->qd", sp.bary, normals[sp.corners])
     behind = np.einsum("qd,qd->q", points - closest, n_at) < 0.0
-    return behind & ~sp.on_boundary
+    return behind & ~sp.on_boundary & sp.valid
 
 
 def surface_layer_penetration(

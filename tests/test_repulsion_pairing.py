@@ -116,3 +116,41 @@ def test_the_cli_override_changes_only_models_with_the_layer() -> None:
     assert apply_repulsion_pairing(ablation, "deeper") is False and ablation.config.repulsion_pairing == "vertex"
     with pytest.raises(ValueError, match="pairing"):
         apply_repulsion_pairing(full, "triangle")
+
+
+def test_a_degenerate_triangle_or_a_nan_query_gives_no_surface_reading() -> None:
+    # a collinear (zero-area) triangle closest to the first query, and a NaN query
+    v = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.05, 0.0], [0.05, 0.05, 0.0],
+                  [0.0, 0.1, 0.0]])
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    sp = closest_surface_points(np.array([[0.01, 0.0, 0.002], [np.nan, 0.0, 0.0], [0.01, 0.06, 0.003]]), v, f)
+    assert sp.valid.tolist() == [False, False, True]
+    assert np.isfinite(sp.bary).all() and not sp.on_boundary[:2].any()
+    from smln.metrics import behind_surface
+
+    assert not behind_surface(np.array([[0.01, 0.0, -0.002]]), v, f).any()
+
+
+def test_an_invalid_surface_point_leaves_the_vertex_reading(monkeypatch) -> None:
+    """A query the closest-point search marks invalid (degenerate triangle, non-finite input) pushes as the vertex
+    reading alone would, with finite gradients."""
+    import smln.model.smln as smln_model
+    from smln.geometry.surface import SurfacePoints
+
+    model, topology, x, n, stage = _valley_stage(np.array([[0.008, 0.0, 0.006], [0.0, 0.05, -0.01]]))
+    real = closest_surface_points
+
+    def invalid(points, vertices, faces, boundary=None):
+        sp = real(points, vertices, faces, boundary)
+        weights = np.tile([1.0, 0.0, 0.0], (len(points), 1))  # what an invalid row holds
+        return SurfacePoints(sp.corners, weights, np.zeros_like(sp.on_boundary), np.zeros_like(sp.valid))
+
+    monkeypatch.setattr(smln_model, "closest_surface_points", invalid)
+    x_k = x.clone().requires_grad_(True)
+    faces = torch.as_tensor(topology.layer_surface(0)[0])
+    n_k = vertex_normals(x_k, faces)
+    a, _ = model._push_deeper(topology, x, x_k, n_k, stage, 0)
+    a_vertex, _ = model.repulsion(x, x_k, n_k, stage)
+    torch.testing.assert_close(a, a_vertex)
+    a.sum().backward()
+    assert torch.isfinite(x_k.grad).all()

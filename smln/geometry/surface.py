@@ -31,11 +31,14 @@ class SurfacePoints:
         bary: (Q, 3) float64 barycentric weights of the closest point on those corners (sum 1).
         on_boundary: (Q,) bool, the closest point is on the surface's open boundary (an edge used by one face,
             or a vertex of such an edge): the query lies beyond the surface's edge, not in front of or behind it.
+        valid: (Q,) bool, a closest point was found: False for a query that is not finite or whose closest
+            triangle is degenerate (zero area: its weights are undefined); such rows hold weights (1, 0, 0).
     """
 
     corners: np.ndarray
     bary: np.ndarray
     on_boundary: np.ndarray
+    valid: np.ndarray
 
 
 def closest_surface_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -56,16 +59,20 @@ def closest_surface_points(points: np.ndarray, vertices: np.ndarray, faces: np.n
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     nv = len(vertices)
     if len(points) == 0:
-        return SurfacePoints(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros(0, bool))
-    _, tri, bary = gpytoolbox.squared_distance(np.ascontiguousarray(points, np.float64),
-                                               np.ascontiguousarray(vertices, np.float64), faces, use_cpp=True)
+        return SurfacePoints(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0, bool))
+    points = np.ascontiguousarray(points, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):  # degenerate triangles: NaN weights, marked invalid below
+        sq, tri, bary = gpytoolbox.squared_distance(points, np.ascontiguousarray(vertices, np.float64), faces,
+                                                    use_cpp=True)
     corners = faces[np.asarray(tri, dtype=np.int64).reshape(-1)]
-    bary = np.asarray(bary, dtype=np.float64).reshape(-1, 3)
+    bary = np.asarray(bary, dtype=np.float64).reshape(-1, 3).copy()
+    valid = np.isfinite(bary).all(axis=1) & np.isfinite(np.asarray(sq)).reshape(-1) & np.isfinite(points).all(axis=1)
+    bary[~valid] = (1.0, 0.0, 0.0)
     if boundary is None:
         boundary = boundary_edge_keys(faces, nv)
     on_boundary = np.zeros(len(points), dtype=bool)
     if len(boundary) == 0:
-        return SurfacePoints(corners, bary, on_boundary)
+        return SurfacePoints(corners, bary, on_boundary, valid)
     zero = bary < tol
     nzero = zero.sum(axis=1)
     edge_rows = np.flatnonzero(nzero == 1)  # on the edge opposite the zero corner
@@ -78,4 +85,4 @@ def closest_surface_points(points: np.ndarray, vertices: np.ndarray, faces: np.n
     if len(vert_rows):
         corner = corners[vert_rows, np.argmax(bary[vert_rows], axis=1)]
         on_boundary[vert_rows] = np.isin(corner, np.unique(np.stack([boundary // nv, boundary % nv])))
-    return SurfacePoints(corners, bary, on_boundary)
+    return SurfacePoints(corners, bary, on_boundary & valid, valid)

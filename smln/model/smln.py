@@ -94,7 +94,8 @@ class SMLNConfig:
             ``"deeper"`` (our extension): also the closest point of the inner layer's *triangles* at step t,
             carried to x̂ by its barycentric weights, with the interpolated vertex normal; whichever of the two
             reads the vertex deeper (smaller E_r) is the pair that pushes it. A closest point on the inner
-            layer's hem is no surface reading (the vertex lies beyond the hem), nor is one whose normal faces
+            layer's hem is no surface reading (the vertex lies beyond the hem), nor is one on a degenerate
+            (zero-area) triangle, nor one whose normal faces
             away from the nearest inner vertex's (the back of a fold: its reading would push the vertex inward,
             toward the body). The vertex reading alone misses an outer vertex that sits in front of its nearest
             inner vertex's tangent plane but behind the inner surface between vertices (a fold, a concave patch;
@@ -342,7 +343,8 @@ class SMLN(nn.Module):
         e_surface = ((x_k[i] - c_next) * n_c).sum(-1)
         e_vertex = ((x_k[i] - x_k[j]) * n_k[j]).sum(-1)
         facing = (n_c * n_k[j]).sum(-1) > 0.0
-        use = torch.as_tensor(~sp.on_boundary, device=x_k.device) & (e_surface < e_vertex) & facing
+        readable = torch.as_tensor(sp.valid & ~sp.on_boundary, device=x_k.device)
+        use = readable & (e_surface < e_vertex) & facing
         use = use.unsqueeze(-1)
         inner_cur = torch.where(use, c_cur, x_cur[j])
         inner_next = torch.where(use, c_next, x_k[j])
