@@ -38,7 +38,7 @@ from smln.checkpoint import load_checkpoint
 from smln.evaluate import evaluate, resolve_names
 from smln.geometry import set_threads
 from smln.geometry.mesh import vertex_normals
-from smln.geometry.surface import closest_surface_points
+from smln.model.smln import surface_partners
 
 MODES = ("vertex", "off", "surface", "deeper", "vertex_body_guard", "deeper_body_guard")
 
@@ -54,23 +54,16 @@ def _surface_cascade(self, topology, graph, x_hat, free, a_start=None):
     """The garment stage against the inner layer's closest surface point at step t only, inner stages first."""
     pairs = graph.repulsion_pairs
     layer = topology.layer_index.to(pairs.device)
-    x_cur_np = graph.x_cur.detach().cpu().numpy()
     a = torch.zeros_like(x_hat) if a_start is None else a_start
     stages = []
     for k in range(1, max(topology.num_layers, 2)):
         outer = pairs[0][layer[pairs[0]] == k]
-        faces, boundary = topology.layer_surface(k - 1)
-        if len(outer) == 0 or len(faces) == 0:
+        if len(outer) == 0 or len(topology.layer_surface(k - 1)[0]) == 0:
             continue
-        sp = closest_surface_points(x_cur_np[outer.numpy()], x_cur_np, faces, boundary)
-        keep = torch.as_tensor(~sp.on_boundary)
-        outer, corners = outer[keep], torch.as_tensor(sp.corners)[keep]
-        w = torch.as_tensor(sp.bary, dtype=x_hat.dtype)[keep].unsqueeze(-1)
         x_k = x_hat + a
         n_k = vertex_normals(x_k, topology.faces)
-        c_cur = (w * graph.x_cur[corners]).sum(1)
-        c_next = (w * x_k[corners]).sum(1)
-        n_c = torch.nn.functional.normalize((w * n_k[corners]).sum(1), dim=-1)
+        c_cur, c_next, n_c, keep = surface_partners(topology, graph.x_cur, x_k, n_k, outer, k - 1)
+        outer, c_cur, c_next, n_c = outer[keep], c_cur[keep], c_next[keep], n_c[keep]
         a_k, ex = self.repulsion.push(outer, graph.x_cur[outer], x_k[outer], c_cur, c_next, n_c, x_hat.shape[0])
         a = a + a_k * free
         stages.append({"active_pairs": torch.stack([outer[ex["active"]], outer[ex["active"]]]),

@@ -167,6 +167,31 @@ class SMLNConfig:
         return cls(**d)
 
 
+def surface_partners(topology: GraphTopology, x_cur: torch.Tensor, x_k: torch.Tensor, n_k: torch.Tensor,
+                     outer: torch.Tensor, inner_layer: int,
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Each outer vertex's closest point on the inner layer's triangles at step t, carried to ``x_k``.
+
+    Args:
+        x_cur: (V, 3) positions at t, m. x_k: (V, 3) predicted positions, m. n_k: (V, 3) unit vertex normals at
+            ``x_k``. outer: (P,) int64 vertices queried. inner_layer: the layer whose triangles are searched.
+
+    Returns:
+        c_cur (P, 3) the point at t, c_next (P, 3) the same barycentric point at ``x_k`` (differentiable), n_c (P, 3)
+        the interpolated unit normal there, and readable (P,) bool: a valid closest point off the inner layer's
+        hem (elsewhere the rows are finite but mean nothing).
+    """
+    faces, boundary = topology.layer_surface(inner_layer)
+    x_np = x_cur.detach().cpu().numpy()
+    sp = closest_surface_points(x_np[outer.cpu().numpy()], x_np, faces, boundary)
+    corners = torch.as_tensor(sp.corners, device=x_k.device)
+    w = torch.as_tensor(sp.bary, dtype=x_k.dtype, device=x_k.device).unsqueeze(-1)
+    c_cur = (w * x_cur[corners]).sum(1)
+    c_next = (w * x_k[corners]).sum(1)
+    n_c = nn.functional.normalize((w * n_k[corners]).sum(1), dim=-1)
+    return c_cur, c_next, n_c, torch.as_tensor(sp.valid & ~sp.on_boundary, device=x_k.device)
+
+
 class SMLN(nn.Module):
     """The SMLN network. Per step: ``p, a, extras = model(topology.build(...))``.
 
@@ -332,18 +357,10 @@ class SMLN(nn.Module):
             as :meth:`RepulsionLayer.forward` (``active_pairs`` names j also where the surface point pushed).
         """
         i, j = stage[0], stage[1]
-        faces, boundary = topology.layer_surface(inner_layer)
-        x_np = x_cur.detach().cpu().numpy()
-        sp = closest_surface_points(x_np[i.cpu().numpy()], x_np, faces, boundary)
-        corners = torch.as_tensor(sp.corners, device=x_k.device)
-        w = torch.as_tensor(sp.bary, dtype=x_k.dtype, device=x_k.device).unsqueeze(-1)
-        c_cur = (w * x_cur[corners]).sum(1)
-        c_next = (w * x_k[corners]).sum(1)
-        n_c = nn.functional.normalize((w * n_k[corners]).sum(1), dim=-1)
+        c_cur, c_next, n_c, readable = surface_partners(topology, x_cur, x_k, n_k, i, inner_layer)
         e_surface = ((x_k[i] - c_next) * n_c).sum(-1)
         e_vertex = ((x_k[i] - x_k[j]) * n_k[j]).sum(-1)
         facing = (n_c * n_k[j]).sum(-1) > 0.0
-        readable = torch.as_tensor(sp.valid & ~sp.on_boundary, device=x_k.device)
         use = readable & (e_surface < e_vertex) & facing
         use = use.unsqueeze(-1)
         inner_cur = torch.where(use, c_cur, x_cur[j])
