@@ -34,7 +34,7 @@ from smln.body import BODY_SHAPES
 from smln.data_sampling import Scene, SceneCache
 from smln.geometry import set_threads, vertex_normals
 from smln.graph import LEGACY_BODY_EDGE_DIM
-from smln.losses import BodyStep, LossWeights, total_loss
+from smln.losses import BodyStep, LossWeights, layer_pairs, pre_layer_contact_loss, total_loss
 from smln.model import SMLN, SMLNConfig
 from smln.model.smln import WEIGHTLESS_FIELDS
 
@@ -99,6 +99,8 @@ class TrainConfig:
     model: dict[str, Any] = field(default_factory=dict)
     body_push_init: float = 1.0  # an --init-from run that adds the body repulsion stage starts it at this push
     freeze_body_stage: bool = False  # the body stage of the repulsion layer keeps its initial weights (a fixed push)
+    pre_layer_repulsion: float = 0.0  # > 0: the repulsion loss also on x̂, before the layer, x this factor (session 40)
+    pre_layer_collision: float = 0.0  # > 0: the body penalty also on x̂, before the layer, x this factor (session 40)
 
     def weights(self) -> LossWeights:
         """The loss weights of this variant: :meth:`LossWeights.training`, repulsion off for ``baseline`` (the
@@ -126,6 +128,13 @@ class TrainConfig:
         w.layer_friction_contact = self.layer_friction_normal == "contact"
         if not VARIANTS[self.variant][1]:
             w.repulsion = 0.0
+        for name in ("pre_layer_repulsion", "pre_layer_collision"):
+            factor = getattr(self, name)
+            if not 0.0 <= factor <= 100.0:
+                raise ValueError(f"{name} must be in [0, 100], got {factor!r}")
+            if factor and not VARIANTS[self.variant][0]:
+                raise ValueError(f"{name} reads the prediction before the repulsion layer; variant "
+                                 f"{self.variant!r} has no layer (its prediction is already what the losses read)")
         return w
 
     def model_config(self) -> SMLNConfig:
@@ -333,7 +342,16 @@ class Trainer:
         graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body.normals_next)
         p, a, extras = self.net(graph, topo)
         x_next = extras["x_next"]
-        loss, terms = total_loss(x_prev, x_cur, x_next, body, scene.rest, self.weights)
+        pre_rep, pre_col = self.cfg.pre_layer_repulsion, self.cfg.pre_layer_collision
+        pairs = layer_pairs(x_cur.detach(), scene.rest) if pre_rep and scene.rest.num_layers > 1 else None
+        loss, terms = total_loss(x_prev, x_cur, x_next, body, scene.rest, self.weights, pairs=pairs)
+        if pre_rep or pre_col:  # the network's own prediction x̂ (pinned vertices at their targets), before the layer
+            x_hat = torch.where(topo.pinned.unsqueeze(-1), x_next, extras["x_hat"])
+            pre_loss, pre_terms = pre_layer_contact_loss(x_hat, body, scene.rest, self.weights, pre_rep, pre_col,
+                                                         pairs=pairs)
+            loss = loss + pre_loss
+            terms.update(pre_terms)
+            terms["total"] = float(loss.detach())
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(self._params, self.cfg.grad_clip, foreach=True)
@@ -577,7 +595,7 @@ class Trainer:
         path = self.out / "log.csv"
         keys = ["step", "wall_s", "total", "stretch", "bending", "gravity", "inertia", "collision", "friction",
                 "repulsion", "grad_norm", "repulsion_mean", "val_strain_mean", "val_h_coll", "val_l_coll",
-                "val_frames", "val_exploded", "val_score", "layer_friction"]
+                "val_frames", "val_exploded", "val_score", "layer_friction", "pre_repulsion", "pre_collision"]
         new = not path.exists()
         if not new:  # a log begun before a column was added keeps its own columns (resume appends to it)
             with open(path, newline="") as fh:
@@ -794,6 +812,12 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                    help="the body stage of the repulsion layer is not trained: it keeps the push it starts with "
                         "(--body-push-init with --init-from, else a projection onto its threshold) and the rest of "
                         "the network learns around it")
+    p.add_argument("--pre-layer-repulsion", type=float,
+                   help="variant full: the repulsion loss read also on the network's prediction before the repulsion "
+                        "layer (x̂), weighted by this factor times λr (default 0: off, the paper's objective)")
+    p.add_argument("--pre-layer-collision", type=float,
+                   help="variant full: the body penalty read also on x̂, before the layer's body stage, weighted by "
+                        "this factor times its weight (default 0: off)")
     args = p.parse_args(argv)
     base: dict[str, Any] = {}
     run_cfg = Path(args.out) / "config.json"
@@ -817,7 +841,8 @@ def parse_args(argv: list[str] | None = None) -> tuple[TrainConfig, argparse.Nam
                       ("layer_friction_normal", "layer_friction_normal"),
                       ("layer_friction_radius", "layer_friction_radius"),
                       ("validation_skin_guard", "validation_skin_guard"), ("body_push_init", "body_push_init"),
-                      ("freeze_body_stage", "freeze_body_stage")):
+                      ("freeze_body_stage", "freeze_body_stage"),
+                      ("pre_layer_repulsion", "pre_layer_repulsion"), ("pre_layer_collision", "pre_layer_collision")):
         if getattr(args, flag) is not None:
             setattr(cfg, key, getattr(args, flag))
     return cfg, args

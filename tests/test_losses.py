@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 import trimesh
 
@@ -22,6 +23,7 @@ from smln.losses import (
     inertia_energy,
     layer_friction_energy,
     layer_pairs,
+    pre_layer_contact_loss,
     repulsion_energy,
     stretch_energy,
     total_loss,
@@ -163,6 +165,41 @@ def test_repulsion_zero_beyond_eps_and_cubic_inside():
     # pairs beyond the pairing radius at step t are dropped
     _, far = two_sheets(0.05)
     assert len(layer_pairs(far, rest)) == 0
+
+
+def test_pre_layer_contact_loss_reads_the_prediction_before_the_layer():
+    """The repulsion term on x̂ is the cubic of Eq. 25 times factor x λr; the body term the cubic penalty times
+    factor x its weight; a factor of 0 leaves its term out; x_{t+1} plays no part."""
+    rest, x_cur = two_sheets(0.005)
+    pairs = layer_pairs(x_cur, rest)
+    w = LossWeights(repulsion=8e4, collision=2e4, repulsion_eps=4.5e-3)
+    x_hat = x_cur.clone()
+    x_hat[9:, 2] = 0.001  # the outer sheet 1 mm in front of the inner one: 3.5 mm inside the clearance
+    far_body = BodyStep.from_vertices(torch.tensor([[0.0, 0.0, -1.0]] * 3), torch.tensor([[0.0, 0.0, -1.0],
+                                      [1.0, 0.0, -1.0], [0.0, 1.0, -1.0]]), torch.tensor([[0, 1, 2]]))
+    loss, terms = pre_layer_contact_loss(x_hat, far_body, rest, w, repulsion_factor=0.5, pairs=pairs)
+    assert set(terms) == {"pre_repulsion"}
+    assert math.isclose(terms["pre_repulsion"], 9 * 0.0035**3, rel_tol=1e-4)
+    assert math.isclose(loss.item(), 0.5 * 8e4 * 9 * 0.0035**3, rel_tol=1e-4)
+    # the pairs are found from x_cur when not given
+    again, _ = pre_layer_contact_loss(x_hat, far_body, rest, w, repulsion_factor=0.5, x_cur=x_cur)
+    assert math.isclose(again.item(), loss.item(), rel_tol=1e-6)
+    # the body term: a cloth vertex 1 cm inside a unit sphere
+    s = trimesh.creation.icosphere(subdivisions=4)
+    sphere = torch.as_tensor(s.vertices, dtype=torch.float32)
+    body = BodyStep.from_vertices(sphere, sphere, torch.as_tensor(s.faces))
+    v, f = grid(2, size=0.01)
+    one = ClothRest.from_cloth(make_cloth([(v, f)]))
+    inside = sphere[:4] / sphere[:4].norm(dim=-1, keepdim=True) * 0.99
+    loss, terms = pre_layer_contact_loss(inside, body, one, w, repulsion_factor=1.0, collision_factor=2.0)
+    assert set(terms) == {"pre_collision"}  # one layer: no repulsion term
+    expected = 4 * (w.collision_eps + 0.01) ** 3
+    assert math.isclose(terms["pre_collision"], expected, rel_tol=2e-2)
+    assert math.isclose(loss.item(), 2.0 * 2e4 * terms["pre_collision"], rel_tol=1e-5)
+    zero, none = pre_layer_contact_loss(inside, body, one, w)
+    assert zero.item() == 0.0 and none == {}
+    with pytest.raises(ValueError, match=">= 0"):
+        pre_layer_contact_loss(inside, body, one, w, collision_factor=-1.0)
 
 
 def test_collision_inside_and_outside_body():

@@ -631,3 +631,24 @@ def test_freezing_the_body_stage_needs_a_model_with_one(tmp_path):
     with pytest.raises(ValueError, match="body_repulsion"):
         train(["--out", str(tmp_path / "x"), "--max-steps", "1", "--freeze-body-stage", "--outfits", _outfit(),
                *TINY])
+
+
+@pytest.mark.slow
+def test_pre_layer_contact_terms_train_the_prediction_before_the_layer(tmp_path):
+    """--pre-layer-repulsion / --pre-layer-collision add the contact terms read on x̂: they are logged, they change
+    the gradient (same seed, different weights after a few steps), and a variant without the layer refuses them."""
+    import csv
+
+    two_layer = _outfit()  # every training outfit has two layers or more
+    common = ["--variant", "full", "--max-steps", "4", "--seed", "3", "--outfits", two_layer, "--repulsion-eps", "0.02",
+              "--collision-eps", "0.02", *TINY]
+    plain = train(["--out", str(tmp_path / "plain"), *common])
+    pre = train(["--out", str(tmp_path / "pre"), "--pre-layer-repulsion", "1", "--pre-layer-collision", "1", *common])
+    assert not torch.equal(_params(plain), _params(pre))
+    with open(tmp_path / "pre" / "log.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and all(float(r["pre_repulsion"]) >= 0 and float(r["pre_collision"]) >= 0 for r in rows)
+    assert any(float(r["pre_repulsion"]) > 0 for r in rows) and any(float(r["pre_collision"]) > 0 for r in rows)
+    with pytest.raises(ValueError, match="no layer"):
+        train(["--out", str(tmp_path / "norep"), "--variant", "no_repulsion_layer", "--pre-layer-repulsion", "1",
+               "--max-steps", "1", "--outfits", two_layer, *TINY])

@@ -13,7 +13,7 @@ from smln.losses.inertia import inertia_energy
 from smln.losses.repulsion import PAIR_RADIUS, REPULSION_EPS, layer_pairs, repulsion_energy
 from smln.losses.rest import ClothRest
 from smln.losses.stretch import stretch_energy
-from smln.losses.total import BodyStep, LossWeights, total_loss
+from smln.losses.total import BodyStep, LossWeights, pre_layer_contact_loss, total_loss
 
 __all__ = [
     "COLLISION_EPS",
@@ -32,6 +32,7 @@ __all__ = [
     "inertia_energy",
     "layer_pairs",
     "repulsion_energy",
+    "pre_layer_contact_loss",
     "stretch_energy",
     "total_loss",
 ]

@@ -169,3 +169,55 @@ def total_loss(
     values = {k: float(v.detach()) for k, v in terms.items()}
     values["total"] = float(loss.detach())
     return loss, values
+
+
+def pre_layer_contact_loss(
+    x_hat: torch.Tensor,
+    body: BodyStep,
+    rest: ClothRest,
+    weights: LossWeights,
+    repulsion_factor: float = 0.0,
+    collision_factor: float = 0.0,
+    pairs: torch.Tensor | None = None,
+    x_cur: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """The contact terms of :func:`total_loss` read on the network's own prediction x̂, before the repulsion layer.
+
+    Our extension of the paper's objective (session 40): Eq. 17 scores only x_{t+1} = x̂ + a, so with the repulsion
+    layer on, the network is never asked to keep the layers (or the body) apart itself: the layer does it. These
+    terms ask it to, the layer staying a safety net: ``repulsion_factor * weights.repulsion *`` the repulsion energy
+    (Eq. 23-25, same clearance and pairs as the main term) and ``collision_factor * weights.collision *`` the body
+    penalty, both at x̂. A factor of 0 skips its term.
+
+    Args:
+        x_hat: (V, 3) meters, x_t + v_t + p (pinned vertices should already hold their targets).
+        body: :class:`BodyStep` of this step.
+        rest: :class:`~smln.losses.rest.ClothRest` of the cloth.
+        weights: the run's :class:`LossWeights` (``repulsion``, ``collision`` and their clearances).
+        repulsion_factor, collision_factor: multipliers of those weights, >= 0.
+        pairs: (P, 2) cross-layer pairs at step t (:func:`~smln.losses.repulsion.layer_pairs`); computed from
+            ``x_cur`` if None.
+        x_cur: (V, 3) positions at t, meters; needed only when ``pairs`` is None.
+
+    Returns:
+        loss: scalar tensor (J); terms: unweighted ``pre_repulsion`` / ``pre_collision`` (m^3) of the terms computed.
+    """
+    if repulsion_factor < 0 or collision_factor < 0:
+        raise ValueError(f"pre-layer factors must be >= 0, got {repulsion_factor!r}, {collision_factor!r}")
+    terms: dict[str, torch.Tensor] = {}
+    loss = x_hat.new_zeros(())
+    if collision_factor and weights.collision:
+        idx, _ = nearest_vertices(x_hat, tree=body.tree_next)
+        terms["pre_collision"] = collision_energy(x_hat, body.next, body.normals_next, rest, idx=idx,
+                                                  eps=weights.collision_eps)
+        loss = loss + collision_factor * weights.collision * terms["pre_collision"]
+    if repulsion_factor and weights.repulsion and rest.num_layers > 1:
+        if pairs is None:
+            if x_cur is None:
+                raise ValueError("pre_layer_contact_loss needs pairs or x_cur")
+            pairs = layer_pairs(x_cur.detach(), rest)
+        xt = coordinate_major(x_hat)
+        terms["pre_repulsion"] = repulsion_energy_cm(xt, vertex_normals_cm(xt, rest.faces), pairs, rest,
+                                                     eps=weights.repulsion_eps)
+        loss = loss + repulsion_factor * weights.repulsion * terms["pre_repulsion"]
+    return loss, {k: float(v.detach()) for k, v in terms.items()}
