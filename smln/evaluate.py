@@ -23,7 +23,7 @@ from smln.data_sampling import make_scene
 from smln.geometry import set_threads
 from smln.losses import ClothRest
 from smln.metrics import frame_metrics, sequence_metrics
-from smln.model.smln import REPULSION_PAIRINGS
+from smln.model.smln import BODY_PAIRINGS, REPULSION_PAIRINGS
 from smln.rollout import MAX_BODY_DISTANCE, MAX_SKIN_DISTANCE, SKIN_GUARDS, RolloutFrame
 
 TABLE_KEYS = ("bend", "collision_loss", "l_coll", "h_coll", "strain_mean", "strain_max", "offset_rms", "ms_model",
@@ -277,6 +277,11 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
                    help="how the repulsion layer reads an outer vertex against the layer beneath, overriding the "
                         "checkpoint's: vertex (paper Eq. 14, the nearest inner vertex) or deeper (also the closest "
                         "inner triangle point; SMLNConfig.repulsion_pairing); models without the layer are unchanged")
+    p.add_argument("--body-pairing", choices=BODY_PAIRINGS,
+                   help="which body vertex the repulsion layer's body stage reads a garment vertex against, "
+                        "overriding the checkpoint's: edge (its world edge's, nearest at t, as trained) or nearest "
+                        "(nearest to the prediction at t+1, the H-Coll metric's pairing; SMLNConfig.body_pairing); "
+                        "models without the body stage are unchanged")
     p.add_argument("--skin-guard", default="always", choices=SKIN_GUARDS,
                    help="always: --max-skin-distance alone means divergence; symptomatic: only with a symptom of a "
                         "tangle (mean strain > 10 %%, H-Coll > 5 %%) or beyond twice that distance "
@@ -294,6 +299,21 @@ def apply_repulsion_pairing(model, pairing: str | None) -> bool:
     if pairing not in REPULSION_PAIRINGS:
         raise ValueError(f"repulsion pairing must be one of {REPULSION_PAIRINGS}, got {pairing!r}")
     model.config.repulsion_pairing = pairing
+    return True
+
+
+def apply_body_pairing(model, pairing: str | None) -> bool:
+    """Set a loaded model's ``body_pairing`` (``--body-pairing``; None: leave the checkpoint's).
+
+    Returns:
+        True if the model has the body stage of the repulsion layer and its pairing changed.
+    """
+    if pairing is None or not (model.config.use_repulsion_layer and model.config.body_repulsion) \
+            or model.config.body_pairing == pairing:
+        return False
+    if pairing not in BODY_PAIRINGS:
+        raise ValueError(f"body pairing must be one of {BODY_PAIRINGS}, got {pairing!r}")
+    model.config.body_pairing = pairing
     return True
 
 
@@ -386,6 +406,8 @@ def main(argv: list[str] | None = None) -> list[RunResult]:
             name += f" [skin guard {a.skin_guard}]"
         if apply_repulsion_pairing(model, a.repulsion_pairing):
             name += f" [{a.repulsion_pairing} pairing]"
+        if apply_body_pairing(model, a.body_pairing):
+            name += f" [{a.body_pairing} body pairing]"
         if name in methods:  # two checkpoints of one variant (e.g. an old and a new `full`): name them by path
             name = f"{name} ({ck})"
         methods[name] = model

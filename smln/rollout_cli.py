@@ -16,7 +16,13 @@ def main(args: argparse.Namespace) -> None:
 
 def run(argv: list[str] | None = None) -> Path:
     from smln.data_sampling import make_scene
-    from smln.evaluate import add_model_rollout_options, apply_repulsion_pairing, method_frames, rollout_guards
+    from smln.evaluate import (
+        add_model_rollout_options,
+        apply_body_pairing,
+        apply_repulsion_pairing,
+        method_frames,
+        rollout_guards,
+    )
     from smln.export import save_rollout_npz
 
     p = argparse.ArgumentParser(prog="smln rollout", description=__doc__)
@@ -47,6 +53,7 @@ def run(argv: list[str] | None = None) -> Path:
 
         model, _ = load_checkpoint(a.checkpoint)
         apply_repulsion_pairing(model, a.repulsion_pairing)
+        apply_body_pairing(model, a.body_pairing)
     kind = "model" if model is not None else ("solver" if a.solver else "skinning")
     scene = make_scene(a.outfit, a.shape, a.motion, edge_length=a.edge_length, max_frames=a.frames)
     t0 = time.time()

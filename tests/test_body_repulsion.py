@@ -125,3 +125,66 @@ def test_add_body_repulsion_copies_every_weight_and_round_trips(tmp_path, tight_
     assert card["config"]["body_repulsion"] is True
     for k, v in new.state_dict().items():
         assert torch.equal(loaded.state_dict()[k], v), k
+
+
+def test_nearest_body_pairing_reads_the_body_vertex_nearest_to_the_prediction(tight_scene):
+    """body_pairing "nearest": every free garment vertex within the body radius of the body at t+1 is read against
+    the body vertex nearest to its x̂ (found here by scipy's KD-tree, independently), and the projection-initialised
+    stage puts each one inside the depth window exactly on that vertex's threshold plane; same weights as "edge"."""
+    from scipy.spatial import cKDTree
+
+    cloth, body, xs, normals = tight_scene
+    torch.manual_seed(0)
+    edge = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
+    edge.body_repulsion.init_as_projection()
+    nearest = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004, body_pairing="nearest")).eval()
+    nearest.load_state_dict(edge.state_dict())
+    topo = nearest.make_topology(cloth)
+    shift = torch.tensor([0.006, 0.0, 0.0])  # every vertex moves 6 mm along +x: the -x side enters the body
+    with torch.no_grad():
+        pe, _, exe = edge.step(topo, xs[1] - shift, xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+        pn, an, exn = nearest.step(topo, xs[1] - shift, xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    assert torch.equal(pe, pn)  # the network's prediction is the same; only the stage's pairing differs
+    x_hat = exn["x_hat"]
+    dist, idx = cKDTree(body[2].numpy()).query(x_hat.numpy())
+    idx = torch.as_tensor(idx)
+    e = ((x_hat - body[2][idx]) * normals[2][idx]).sum(-1)
+    free = ~cloth.pinned
+    hit = torch.as_tensor(dist < 0.03) & (e < 0.004) & (e > -BODY_REPULSION_MAX_DEPTH) & free
+    assert hit.sum() > 10 and (e[hit] < 0).any()
+    a_body = exn["body_repulsion"]["a"]
+    after = ((x_hat + a_body - body[2][idx]) * normals[2][idx]).sum(-1)
+    assert (after[hit] - 0.004).abs().max() < 2e-5
+    assert torch.count_nonzero(a_body[~hit]) == 0
+    window = torch.as_tensor(dist < 0.03) & (e < 0.004) & (e > -BODY_REPULSION_MAX_DEPTH)  # pinned rows too, their
+    assert sorted(exn["body_repulsion"]["active_vertices"].tolist()) == torch.nonzero(window).flatten().tolist()
+    assert torch.count_nonzero(a_body[cloth.pinned]) == 0  # push is masked (as with the edge pairing)
+    # the edge reading (nearest body vertex at t) pushes another set here: the pairing is what changed
+    assert sorted(exe["body_repulsion"]["active_vertices"].tolist()) != sorted(
+        exn["body_repulsion"]["active_vertices"].tolist())
+    # a NaN prediction row is no pair; the others are unchanged
+    from smln.model.smln import nearest_body_pairs
+
+    g = exn["graph"]
+    q, r = nearest_body_pairs(g, x_hat, 0.03)
+    bad = x_hat.clone()
+    bad[int(q[0])] = float("nan")
+    q2, r2 = nearest_body_pairs(g, bad, 0.03)
+    assert q2.tolist() == q[1:].tolist() and r2.tolist() == r[1:].tolist()
+
+
+def test_body_pairing_config_and_override():
+    from smln.evaluate import apply_body_pairing
+    from smln.model.smln import WEIGHTLESS_FIELDS
+
+    with pytest.raises(ValueError, match="body_pairing"):
+        SMLNConfig(body_repulsion=True, body_pairing="farthest")
+    cfg = SMLNConfig(body_repulsion=True, body_pairing="nearest")
+    assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
+    assert "body_pairing" in WEIGHTLESS_FIELDS
+    model = SMLN(small_config(body_repulsion=True))
+    assert model.config.body_pairing == "edge"  # the default: as every stage was trained
+    assert apply_body_pairing(model, "nearest") and model.config.body_pairing == "nearest"
+    assert not apply_body_pairing(model, "nearest") and not apply_body_pairing(model, None)
+    without = SMLN(small_config())  # no body stage: nothing to change
+    assert not apply_body_pairing(without, "nearest") and without.config.body_pairing == "edge"

@@ -97,6 +97,9 @@ class GraphInputs:
         x_cur: (V, 3) positions at t.
         velocity: (V, 3) v_t = x_t - x_{t-1}.
         pinned_next: (V, 3) next positions of pinned vertices (rows of free vertices unused).
+        body_cur, body_next: (Vb, 3) body vertices at t and t+1, m (what the body stage of the repulsion layer
+            reads with ``SMLNConfig.body_pairing = "nearest"``); None for inputs built by hand.
+        body_normals_next: (Vb, 3) unit outward body vertex normals at t+1, or None (a topology without body normals).
     """
 
     node_features: torch.Tensor
@@ -111,6 +114,9 @@ class GraphInputs:
     x_cur: torch.Tensor
     velocity: torch.Tensor
     pinned_next: torch.Tensor
+    body_cur: torch.Tensor | None = None
+    body_next: torch.Tensor | None = None
+    body_normals_next: torch.Tensor | None = None
 
 
 class GraphTopology:
@@ -321,7 +327,8 @@ class GraphTopology:
             if body_normals_next.shape != body_next.shape:
                 raise ValueError(f"body_normals_next is {tuple(body_normals_next.shape)}, body_next is "
                                  f"{tuple(body_next.shape)}")
-            nb = body_normals_next.to(dev, torch.float32).index_select(0, rb_t)
+            body_normals_next = body_normals_next.to(dev, torch.float32)
+            nb = body_normals_next.index_select(0, rb_t)
             cols += [nb, (d1 * nb).sum(dim=-1, keepdim=True)]
         body_feat = torch.cat(cols, dim=-1)
 
@@ -367,4 +374,7 @@ class GraphTopology:
             x_cur=x_cur,
             velocity=vel,
             pinned_next=pinned_next,
+            body_cur=body_cur,
+            body_next=body_next,
+            body_normals_next=body_normals_next if self.body_normals else None,
         )

@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from smln.cloth import DT, GRAVITY
-from smln.geometry import PointTree
+from smln.geometry import PointTree, build_tree, nearest_vertices
 from smln.geometry.surface import closest_surface_points
 from smln.graph.hierarchy import check_rules
 from smln.graph.multilayer import (
@@ -31,7 +31,10 @@ from smln.model.repulsion import RepulsionLayer
 REPULSION_PAIRINGS = ("vertex", "deeper")
 """Values of :attr:`SMLNConfig.repulsion_pairing`."""
 
-WEIGHTLESS_FIELDS = ("repulsion_pairing",)
+BODY_PAIRINGS = ("edge", "nearest")
+"""Values of :attr:`SMLNConfig.body_pairing`."""
+
+WEIGHTLESS_FIELDS = ("repulsion_pairing", "body_pairing")
 """:class:`SMLNConfig` fields that change how the weights are used, not which weights there are: a checkpoint's
 weights load into a model that differs from its config only there (``smln train --init-from``)."""
 
@@ -102,6 +105,14 @@ class SMLNConfig:
             the point-to-triangle L-Coll). The same weights serve both (the MLP's inputs have the same meaning).
             Costs a closest-point query per layer pair and step (~1.2x per frame at 2 cm, bench/rollout_speed.py).
             Cards written before this field existed load with ``"vertex"``.
+        body_pairing: which body vertex the body stage reads a garment vertex against. ``"edge"`` (as every stage
+            was trained): its body world edge's, the body vertex nearest to it at step t. ``"nearest"`` (our
+            extension, session 40): the body vertex nearest to its prediction x̂ at t+1 (within ``body_radius``,
+            every garment vertex, with or without a world edge), the pairing of the H-Coll metric and of the body
+            collision loss. On the shipped model about 60 % of the garment vertices the H-Coll metric finds inside
+            the body at t+1 are read *outside* by their world edge's vertex (fast limbs: the nearest body vertex
+            changed within the frame), so the stage does not push them. The same weights serve both. Costs a
+            KD-tree over the body at t+1 per step. Cards written before this field existed load with ``"edge"``.
         output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
             output statistics from near-rigid motion have ~0 vertical variance and would freeze Z.
         normalizer_accumulations: training forward calls that update the input statistics, then frozen.
@@ -125,6 +136,7 @@ class SMLNConfig:
     repulsion_pairing: str = "vertex"
     body_repulsion: bool = False
     body_repulsion_threshold: float = 0.003
+    body_pairing: str = "edge"
     output_scale: float = GRAVITY * DT * DT
     normalizer_accumulations: int = 200
     dt: float = DT
@@ -143,6 +155,8 @@ class SMLNConfig:
             raise ValueError("body_repulsion needs use_repulsion_layer and body_normal_features")
         if self.repulsion_pairing not in REPULSION_PAIRINGS:
             raise ValueError(f"repulsion_pairing must be one of {REPULSION_PAIRINGS}, got {self.repulsion_pairing!r}")
+        if self.body_pairing not in BODY_PAIRINGS:
+            raise ValueError(f"body_pairing must be one of {BODY_PAIRINGS}, got {self.body_pairing!r}")
         if not self.body_repulsion_threshold > 0:
             raise ValueError(f"body_repulsion_threshold must be > 0 m, got {self.body_repulsion_threshold}")
 
@@ -165,6 +179,35 @@ class SMLNConfig:
         if unknown:
             raise TypeError(f"unknown SMLNConfig fields: {sorted(unknown)}")
         return cls(**d)
+
+
+def nearest_body_pairs(graph: GraphInputs, x_hat: torch.Tensor, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each garment vertex with the body vertex nearest to its prediction x̂ at t+1, if closer than ``radius``.
+
+    The pairing of ``SMLNConfig.body_pairing = "nearest"`` (and of the H-Coll metric and the body collision loss).
+    Rows of x̂ that are not finite are left out.
+
+    Args:
+        graph: the step's inputs; ``body_cur``, ``body_next`` and ``body_normals_next`` must be set
+            (:meth:`GraphTopology.build` sets them for a topology with body normals).
+        x_hat: (V, 3) predicted positions at t+1, m.
+        radius: the largest distance of a pair, m.
+
+    Returns:
+        q (P,) int64 garment vertices and r (P,) int64 their body vertices, on x̂'s device.
+    """
+    if graph.body_next is None or graph.body_cur is None or graph.body_normals_next is None:
+        raise ValueError("body_pairing 'nearest' needs the body at t and t+1 and its normals at t+1 in the graph "
+                         "inputs (GraphTopology.build with body normals)")
+    xh = x_hat.detach()
+    ok = torch.isfinite(xh).all(dim=-1)
+    rows = torch.nonzero(ok, as_tuple=True)[0]
+    if rows.numel() == 0:
+        empty = torch.zeros(0, dtype=torch.long, device=x_hat.device)
+        return empty, empty
+    idx, dist = nearest_vertices(xh.index_select(0, rows), tree=build_tree(graph.body_next.detach()))
+    keep = dist.to(x_hat.device) < radius
+    return rows[keep], idx.to(x_hat.device)[keep]
 
 
 def surface_partners(topology: GraphTopology, x_cur: torch.Tensor, x_k: torch.Tensor, n_k: torch.Tensor,
@@ -298,10 +341,17 @@ class SMLN(nn.Module):
         Returns:
             (V, 3) m/frame^2, zero on pinned vertices; stores the stage's extras in ``extras["body_repulsion"]``.
         """
-        q, f = graph.body_receivers, graph.body_features
-        xq = graph.x_cur.index_select(0, q)
-        a, ex = self.body_repulsion.push(q, xq, x_hat.index_select(0, q), xq - f[:, 0:3], xq - f[:, 4:7],
-                                         f[:, 9:12], x_hat.shape[0])
+        if self.config.body_pairing == "nearest":
+            q, r = nearest_body_pairs(graph, x_hat, self.config.body_radius)
+            xq = graph.x_cur.index_select(0, q)
+            a, ex = self.body_repulsion.push(q, xq, x_hat.index_select(0, q), graph.body_cur.index_select(0, r),
+                                             graph.body_next.index_select(0, r),
+                                             graph.body_normals_next.index_select(0, r), x_hat.shape[0])
+        else:
+            q, f = graph.body_receivers, graph.body_features
+            xq = graph.x_cur.index_select(0, q)
+            a, ex = self.body_repulsion.push(q, xq, x_hat.index_select(0, q), xq - f[:, 0:3], xq - f[:, 4:7],
+                                             f[:, 9:12], x_hat.shape[0])
         a = a * free
         ex["active_vertices"] = q[ex.pop("active")]
         extras["body_repulsion"] = {"a": a, **ex}
