@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import threading
+import types
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -28,9 +29,18 @@ from smln.rollout import RolloutFrame, rollout
 PROJECTIONS: tuple[str, ...] = ("off", "body", "body+layers")
 """Collision-projection choices of :class:`Setting` (``smln.projection``)."""
 
-READINGS: tuple[str, ...] = ("checkpoint", "vertex", "deeper")
-"""Repulsion-layer readings of :class:`Setting`: the checkpoint's own, or ``SMLNConfig.repulsion_pairing`` set to one
-of its values for the session (same weights; models without the layer are unchanged)."""
+READING_CHANGES: dict[str, tuple[str, str]] = {
+    "vertex": ("repulsion_pairing", "vertex"),
+    "deeper": ("repulsion_pairing", "deeper"),
+    "body-edge": ("body_pairing", "edge"),
+    "body-nearest": ("body_pairing", "nearest"),
+}
+"""What each reading but "checkpoint" changes: an :class:`~smln.model.SMLNConfig` field and its value."""
+
+READINGS: tuple[str, ...] = ("checkpoint", *READING_CHANGES)
+"""Repulsion-layer readings of :class:`Setting`: the checkpoint's own, ``SMLNConfig.repulsion_pairing`` set to
+"vertex" or "deeper", or the body stage's ``SMLNConfig.body_pairing`` set to "edge" or "nearest", for the session
+(same weights; a model without the layer, or without its body stage, is unchanged by what it lacks)."""
 
 VARIANTS: tuple[str, ...] = ("full", "no_repulsion_layer", "baseline", "skinning")
 """Variant keys in display order: the three checkpoints of the paper's ablation, then plain skinning."""
@@ -55,7 +65,8 @@ class Setting:
     ``projection`` is one of :data:`PROJECTIONS`: "off" (the learned model alone, as evaluated in the paper),
     "body" or "body+layers" (the post-step of :mod:`smln.projection` after every network step). ``reading`` is one
     of :data:`READINGS`: "checkpoint" (as the card says), "vertex" (paper Eq. 14) or "deeper" (also the closest
-    inner triangle point, ``SMLNConfig.repulsion_pairing``).
+    inner triangle point, ``SMLNConfig.repulsion_pairing``), "body-edge" or "body-nearest" (the body stage against
+    the body vertex nearest at t or nearest to the prediction at t+1, ``SMLNConfig.body_pairing``).
     """
 
     outfit: str
@@ -269,7 +280,7 @@ class Catalog:
         """The checkpoint's model for a variant (loaded once), read with ``reading`` (:data:`READINGS`; a copy of
         the loaded model when it changes the checkpoint's reading)."""
         from smln.checkpoint import load_checkpoint
-        from smln.evaluate import apply_repulsion_pairing
+        from smln.evaluate import apply_body_pairing, apply_repulsion_pairing
 
         if reading not in READINGS:
             raise ValueError(f"unknown repulsion-layer reading {reading!r} (one of {', '.join(READINGS)})")
@@ -278,13 +289,16 @@ class Catalog:
                 model, _card = load_checkpoint(self.checkpoints[variant], map_location=self.device)
                 self._models[variant] = model
             base = self._models[variant]
-            if reading == "checkpoint" or not base.config.use_repulsion_layer \
-                    or base.config.repulsion_pairing == reading:
+            if reading == "checkpoint":
+                return base
+            field, value = READING_CHANGES[reading]
+            apply = apply_repulsion_pairing if field == "repulsion_pairing" else apply_body_pairing
+            if not apply(types.SimpleNamespace(config=copy.copy(base.config)), value):  # nothing would change
                 return base
             key = (variant, reading)
             if key not in self._models:
                 model = copy.deepcopy(base)
-                apply_repulsion_pairing(model, reading)
+                apply(model, value)
                 self._models[key] = model
             return self._models[key]
 
@@ -303,5 +317,5 @@ class Catalog:
                        project_layers=proj == "body+layers")
 
 
-__all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "READINGS", "VARIANTS", "VARIANT_LABELS", "Catalog", "Scenario",
-           "Setting"]
+__all__ = ["FPS", "MAX_FRAMES", "PROJECTIONS", "READING_CHANGES", "READINGS", "VARIANTS", "VARIANT_LABELS", "Catalog",
+           "Scenario", "Setting"]

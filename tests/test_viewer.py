@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from app.sources import Catalog, Setting
 from app.uploads import MAX_BVH_BYTES, UploadError, UploadStore
@@ -151,6 +152,29 @@ def test_viewer_repulsion_layer_reading_setting(tmp_path):
         assert app.setting.reading == "deeper"
     finally:
         app.stop()
+
+
+def test_catalog_body_stage_readings(tmp_path):
+    """The body-edge / body-nearest readings set body_pairing on a copy of a model with the body stage; the loaded
+    model keeps its own; a model without the stage (or without the layer) is returned as it is."""
+    from smln.checkpoint import save_checkpoint
+    from smln.model.smln import SMLN, SMLNConfig
+
+    save_checkpoint(f"{tmp_path / 'ckpt' / 'full'}/", SMLN(SMLNConfig(latent_size=16, body_repulsion=True)),
+                    card={"variant": "full"})
+    save_checkpoint(f"{tmp_path / 'ckpt' / 'baseline'}/", SMLN(SMLNConfig(latent_size=16, use_repulsion_layer=False)),
+                    card={"variant": "baseline"})
+    cat = Catalog(tmp_path / "ckpt", max_frames=4)
+    base = cat.model("full")
+    near = cat.model("full", "body-nearest")
+    assert near is not base and near.config.body_pairing == "nearest"
+    assert base.config.body_pairing == "edge" and cat.model("full", "body-edge") is base  # already edge: no copy
+    assert near.config.repulsion_pairing == base.config.repulsion_pairing  # one field per reading
+    for key, value in base.state_dict().items():
+        assert torch.equal(near.state_dict()[key], value), key
+    assert cat.model("baseline", "body-nearest") is cat.model("baseline")
+    with pytest.raises(ValueError, match="reading"):
+        cat.model("full", "body-sideways")
 
 
 def test_uploads_are_validated(tmp_path):
