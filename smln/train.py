@@ -339,7 +339,8 @@ class Trainer:
             eps = self.input_noise(scene, x_cur)
             x_prev, x_cur = x_prev + eps, x_cur + eps
         body = BodyStep.from_vertices(body_cur, body_next, scene.body.faces)
-        graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body.normals_next)
+        graph = topo.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body.normals_next,
+                           body_tree_next=body.tree_next)
         p, a, extras = self.net(graph, topo)
         x_next = extras["x_next"]
         pre_rep, pre_col = self.cfg.pre_layer_repulsion, self.cfg.pre_layer_collision

@@ -171,6 +171,13 @@ def test_nearest_body_pairing_reads_the_body_vertex_nearest_to_the_prediction(ti
     bad[int(q[0])] = float("nan")
     q2, r2 = nearest_body_pairs(g, bad, 0.03)
     assert q2.tolist() == q[1:].tolist() and r2.tolist() == r[1:].tolist()
+    # a KD-tree the caller already has (the rollout's, the training step's) gives the same pairs
+    import dataclasses
+
+    from smln.geometry import build_tree
+
+    q3, r3 = nearest_body_pairs(dataclasses.replace(g, body_tree_next=build_tree(body[2])), x_hat, 0.03)
+    assert torch.equal(q3, q) and torch.equal(r3, r)
 
 
 def test_body_pairing_config_and_override():

@@ -146,9 +146,10 @@ def test_shared_body_tree_changes_nothing(scene, monkeypatch):
     seen = []
 
     def spy(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next=None, body_tree=None,
-            body_nearest=None, body_normals_next=None):
+            body_nearest=None, body_normals_next=None, body_tree_next=None):
         g = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_normals_next=body_normals_next)
         seen.append((body_tree, body_nearest, x_cur.numpy().copy(), body_cur.numpy().copy(), len(g.body_receivers)))
+        assert body_tree_next is None  # only a model whose body stage reads the body at t+1 gets that tree
         return step(self, topology, x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree,
                     body_nearest=body_nearest, body_normals_next=body_normals_next)
 
@@ -161,8 +162,8 @@ def test_shared_body_tree_changes_nothing(scene, monkeypatch):
         d = np.linalg.norm(x_cur[:, None, :] - body_cur[None], axis=-1)  # brute force
         np.testing.assert_array_equal(near[0], d.argmin(1))
         np.testing.assert_allclose(near[1], d.min(1), atol=1e-6)
-    monkeypatch.setattr(SMLN, "step",
-                        lambda self, *a, body_tree=None, body_nearest=None, **kw: step(self, *a, **kw))
+    monkeypatch.setattr(SMLN, "step", lambda self, *a, body_tree=None, body_nearest=None, body_tree_next=None, **kw:
+                        step(self, *a, **kw))
     own = list(rollout(small_model(), cloth, seq, bf, num_frames=6))
     for f, g in zip(shared, own, strict=True):
         np.testing.assert_array_equal(f.garment_positions, g.garment_positions)
@@ -202,3 +203,26 @@ def test_symptomatic_skin_guard_lets_a_healthy_excursion_go_on(scene):
                      **loose))
     with pytest.raises(ValueError, match="skin_guard"):
         list(rollout(model, cloth, seq, bf, skin_guard="sometimes", **loose))
+
+
+def test_nearest_body_pairing_reuses_the_frame_tree(scene, monkeypatch):
+    """A model whose body stage reads the body at t+1 (body_pairing "nearest") gets the KD-tree the metrics of frame
+    t+1 use, over the body at t+1, and rolls out exactly as when it builds its own."""
+    cloth, seq, bf = scene
+    model = small_model(body_repulsion=True, body_pairing="nearest").eval()
+    step = SMLN.step
+    trees = []
+
+    def spy(self, *a, body_tree_next=None, **kw):
+        trees.append((body_tree_next, a[4].numpy().copy()))  # a[4]: body_next
+        return step(self, *a, body_tree_next=body_tree_next, **kw)
+
+    monkeypatch.setattr(SMLN, "step", spy)
+    shared = list(rollout(model, cloth, seq, bf, num_frames=6))
+    assert len(trees) == 4
+    for tree, body_next in trees:
+        np.testing.assert_array_equal(tree.points, body_next.astype(np.float32))
+    monkeypatch.setattr(SMLN, "step", lambda self, *a, body_tree_next=None, **kw: step(self, *a, **kw))
+    own = list(rollout(model, cloth, seq, bf, num_frames=6))
+    for f, g in zip(shared, own, strict=True):
+        np.testing.assert_array_equal(f.garment_positions, g.garment_positions)

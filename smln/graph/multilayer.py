@@ -100,6 +100,8 @@ class GraphInputs:
         body_cur, body_next: (Vb, 3) body vertices at t and t+1, m (what the body stage of the repulsion layer
             reads with ``SMLNConfig.body_pairing = "nearest"``); None for inputs built by hand.
         body_normals_next: (Vb, 3) unit outward body vertex normals at t+1, or None (a topology without body normals).
+        body_tree_next: a KD-tree over ``body_next`` if the caller had one (the body stage's nearest pairing reuses
+            it), else None.
     """
 
     node_features: torch.Tensor
@@ -117,6 +119,7 @@ class GraphInputs:
     body_cur: torch.Tensor | None = None
     body_next: torch.Tensor | None = None
     body_normals_next: torch.Tensor | None = None
+    body_tree_next: PointTree | None = None
 
 
 class GraphTopology:
@@ -268,6 +271,7 @@ class GraphTopology:
         body_tree: PointTree | None = None,
         body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
         body_normals_next: torch.Tensor | None = None,
+        body_tree_next: PointTree | None = None,
     ) -> GraphInputs:
         """Features and proximity edges of one step.
 
@@ -286,6 +290,7 @@ class GraphTopology:
                 body radius, as the query would.
             body_normals_next: (Vb, 3) unit outward vertex normals of ``body_next``; required when the topology
                 was built with ``body_normals=True`` (``smln.geometry.vertex_normals(body_next, body_faces)``).
+            body_tree_next: a prebuilt KD-tree over ``body_next``, handed on in the inputs (optional).
 
         Returns:
             :class:`GraphInputs`. Only features and the virtual/body edges are computed here.
@@ -377,4 +382,5 @@ class GraphTopology:
             body_cur=body_cur,
             body_next=body_next,
             body_normals_next=body_normals_next if self.body_normals else None,
+            body_tree_next=body_tree_next,
         )

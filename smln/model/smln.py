@@ -205,7 +205,8 @@ def nearest_body_pairs(graph: GraphInputs, x_hat: torch.Tensor, radius: float) -
     if rows.numel() == 0:
         empty = torch.zeros(0, dtype=torch.long, device=x_hat.device)
         return empty, empty
-    idx, dist = nearest_vertices(xh.index_select(0, rows), tree=build_tree(graph.body_next.detach()))
+    tree = graph.body_tree_next if graph.body_tree_next is not None else build_tree(graph.body_next.detach())
+    idx, dist = nearest_vertices(xh.index_select(0, rows), tree=tree)
     keep = dist.to(x_hat.device) < radius
     return rows[keep], idx.to(x_hat.device)[keep]
 
@@ -294,7 +295,8 @@ class SMLN(nn.Module):
             extras: ``x_hat`` (V, 3) = x_t + v_t + p, ``x_next`` = x_hat + a with pinned vertices at their
                 targets, ``repulsion`` (the layer's extras, if on), ``body_repulsion`` (the body stage's: ``a``
                 (V, 3), ``active_vertices`` (P_a,) the garment vertices pushed, ``magnitude`` (P_a,) m/frame^2,
-                ``signed_distance`` (Eb,) of every body edge's garment vertex at x̂, m).
+                ``signed_distance`` (P,) of every pair's garment vertex at x̂, m: one per body edge, or per
+                nearest pair)
         """
         h = self.node_encoder(self.node_norm(graph.node_features))
         me, ve = graph.mesh_edges, graph.virtual_edges
@@ -333,10 +335,13 @@ class SMLN(nn.Module):
                         extras: dict[str, Any]) -> torch.Tensor:
         """The body stage: a push along the body normal for garment vertices close to or inside the body.
 
-        The pairs are the body world edges (garment vertex q, its nearest body vertex r at t). The body's positions
-        and normal come from the edge features: ``d0 = x_q - b_r(t)``, ``d1 = x_q - b_r(t+1)`` and the unit normal
-        ``n_r(t+1)`` (columns 0-2, 4-6 and 9-11, :meth:`GraphTopology.build`), so b_r(t) = x_q - d0 and
-        b_r(t+1) = x_q - d1; the body is kinematic and is not pushed.
+        With ``body_pairing "edge"`` the pairs are the body world edges (garment vertex q, its nearest body vertex r
+        at t), and the body's positions and normal come from the edge features: ``d0 = x_q - b_r(t)``,
+        ``d1 = x_q - b_r(t+1)`` and the unit normal ``n_r(t+1)`` (columns 0-2, 4-6 and 9-11,
+        :meth:`GraphTopology.build`), so b_r(t) = x_q - d0 and b_r(t+1) = x_q - d1. With ``"nearest"`` they are each
+        garment vertex within ``body_radius`` of the body at t+1 and the body vertex nearest to its x̂
+        (:func:`nearest_body_pairs`), read from the body positions and normals the graph inputs carry. The body is
+        kinematic and is not pushed.
 
         Returns:
             (V, 3) m/frame^2, zero on pinned vertices; stores the stage's extras in ``extras["body_repulsion"]``.
@@ -432,10 +437,12 @@ class SMLN(nn.Module):
         body_tree: PointTree | None = None,
         body_nearest: tuple[np.ndarray, np.ndarray] | None = None,
         body_normals_next: torch.Tensor | None = None,
+        body_tree_next: PointTree | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
         """Build the step's graph and run :meth:`forward` (see :meth:`GraphTopology.build` for the args)."""
         graph = topology.build(x_prev, x_cur, body_cur, body_next, pinned_next, body_tree=body_tree,
-                               body_nearest=body_nearest, body_normals_next=body_normals_next)
+                               body_nearest=body_nearest, body_normals_next=body_normals_next,
+                               body_tree_next=body_tree_next)
         p, a, extras = self(graph, topology)
         extras["graph"] = graph
         return p, a, extras
