@@ -93,8 +93,10 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
             "Repulsion layer reading", list(READINGS), initial_value=setting.reading,
             hint="checkpoint: as its card says; vertex: each outer vertex against its nearest inner vertex (paper "
                  "Eq. 14); deeper: also against the closest inner triangle point, the deeper reading pushes "
-                 "(SMLNConfig.repulsion_pairing); body-edge / body-nearest: the body stage against the body vertex "
-                 "nearest at t / nearest to the prediction at t+1 (SMLNConfig.body_pairing); same weights")
+                 "(SMLNConfig.repulsion_pairing); layer-nearest: against the inner vertex nearest to the prediction "
+                 "at t+1 (the L-Coll metric's pairing); body-edge / body-nearest: the body stage against the body "
+                 "vertex nearest at t / nearest to the prediction at t+1 (SMLNConfig.body_pairing); all-nearest: "
+                 "both stages nearest at t+1; same weights")
         upload_bvh = gui.add_upload_button("Upload BVH clip", icon=None, mime_type=".bvh",
                                            hint=f"CMU-style BVH, at most {MAX_BVH_BYTES // 2**20} MB")
         upload_obj = gui.add_upload_button("Upload OBJ garment", icon=None, mime_type=".obj",

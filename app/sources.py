@@ -29,18 +29,21 @@ from smln.rollout import RolloutFrame, rollout
 PROJECTIONS: tuple[str, ...] = ("off", "body", "body+layers")
 """Collision-projection choices of :class:`Setting` (``smln.projection``)."""
 
-READING_CHANGES: dict[str, tuple[str, str]] = {
-    "vertex": ("repulsion_pairing", "vertex"),
-    "deeper": ("repulsion_pairing", "deeper"),
-    "body-edge": ("body_pairing", "edge"),
-    "body-nearest": ("body_pairing", "nearest"),
+READING_CHANGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "vertex": (("repulsion_pairing", "vertex"),),
+    "deeper": (("repulsion_pairing", "deeper"),),
+    "layer-nearest": (("repulsion_pairing", "nearest"),),
+    "body-edge": (("body_pairing", "edge"),),
+    "body-nearest": (("body_pairing", "nearest"),),
+    "all-nearest": (("repulsion_pairing", "nearest"), ("body_pairing", "nearest")),
 }
-"""What each reading but "checkpoint" changes: an :class:`~smln.model.SMLNConfig` field and its value."""
+"""What each reading but "checkpoint" changes: :class:`~smln.model.SMLNConfig` fields and their values."""
 
 READINGS: tuple[str, ...] = ("checkpoint", *READING_CHANGES)
 """Repulsion-layer readings of :class:`Setting`: the checkpoint's own, ``SMLNConfig.repulsion_pairing`` set to
-"vertex" or "deeper", or the body stage's ``SMLNConfig.body_pairing`` set to "edge" or "nearest", for the session
-(same weights; a model without the layer, or without its body stage, is unchanged by what it lacks)."""
+"vertex", "deeper" or "nearest" (layer-nearest), the body stage's ``SMLNConfig.body_pairing`` set to "edge" or
+"nearest", or both stages' pairing set to "nearest" (all-nearest), for the session (same weights; a model without the
+layer, or without its body stage, is unchanged by what it lacks)."""
 
 VARIANTS: tuple[str, ...] = ("full", "no_repulsion_layer", "baseline", "skinning")
 """Variant keys in display order: the three checkpoints of the paper's ablation, then plain skinning."""
@@ -65,8 +68,9 @@ class Setting:
     ``projection`` is one of :data:`PROJECTIONS`: "off" (the learned model alone, as evaluated in the paper),
     "body" or "body+layers" (the post-step of :mod:`smln.projection` after every network step). ``reading`` is one
     of :data:`READINGS`: "checkpoint" (as the card says), "vertex" (paper Eq. 14) or "deeper" (also the closest
-    inner triangle point, ``SMLNConfig.repulsion_pairing``), "body-edge" or "body-nearest" (the body stage against
-    the body vertex nearest at t or nearest to the prediction at t+1, ``SMLNConfig.body_pairing``).
+    inner triangle point, ``SMLNConfig.repulsion_pairing``), "layer-nearest" (against the inner vertex nearest at
+    t+1), "body-edge" or "body-nearest" (the body stage against the body vertex nearest at t or nearest to the
+    prediction at t+1, ``SMLNConfig.body_pairing``) or "all-nearest" (both stages nearest at t+1).
     """
 
     outfit: str
@@ -291,14 +295,17 @@ class Catalog:
             base = self._models[variant]
             if reading == "checkpoint":
                 return base
-            field, value = READING_CHANGES[reading]
-            apply = apply_repulsion_pairing if field == "repulsion_pairing" else apply_body_pairing
-            if not apply(types.SimpleNamespace(config=copy.copy(base.config)), value):  # nothing would change
+            appliers = {"repulsion_pairing": apply_repulsion_pairing, "body_pairing": apply_body_pairing}
+            changes = READING_CHANGES[reading]
+            dry_run = types.SimpleNamespace(config=copy.copy(base.config))
+            changed = [appliers[field](dry_run, value) for field, value in changes]  # each, on a copy of the config
+            if not any(changed):  # the model already reads that way (or lacks the stage)
                 return base
             key = (variant, reading)
             if key not in self._models:
                 model = copy.deepcopy(base)
-                apply(model, value)
+                for field, value in changes:
+                    appliers[field](model, value)
                 self._models[key] = model
             return self._models[key]
 

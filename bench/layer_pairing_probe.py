@@ -16,6 +16,8 @@ the network's own prediction are kept):
   L-Coll reads it (:func:`smln.metrics.behind_surface`).
 - ``deeper``: ``SMLNConfig.repulsion_pairing = "deeper"``: both readings per outer vertex, the one that reads it
   deeper pushes (a surface point on the hem or on the back of a fold is no reading).
+- ``nearest``: ``SMLNConfig.repulsion_pairing = "nearest"`` (session 41): each paired outer vertex against the
+  inner vertex nearest to its prediction at t+1 (the L-Coll metric's pairing) instead of its nearest at step t.
 - ``vertex_body_guard``, ``deeper_body_guard``: those two readings, and the garment stage's push of a vertex with a
   body world edge loses its component toward the body (along its nearest body vertex's normal): the stage can no
   longer push a vertex squeezed between a fold of the layer beneath and the body into the body.
@@ -35,12 +37,12 @@ from pathlib import Path
 import torch
 
 from smln.checkpoint import load_checkpoint
-from smln.evaluate import evaluate, resolve_names
+from smln.evaluate import apply_body_pairing, evaluate, resolve_names
 from smln.geometry import set_threads
 from smln.geometry.mesh import vertex_normals
-from smln.model.smln import surface_partners
+from smln.model.smln import BODY_PAIRINGS, surface_partners
 
-MODES = ("vertex", "off", "surface", "deeper", "vertex_body_guard", "deeper_body_guard")
+MODES = ("vertex", "off", "surface", "deeper", "nearest", "vertex_body_guard", "deeper_body_guard")
 
 
 def _off_cascade(self, topology, graph, x_hat, free, a_start=None):
@@ -98,8 +100,8 @@ def with_mode(model, mode: str):
         m._cascade_repulsion = types.MethodType(_surface_cascade, m)
     elif mode == "deeper":
         m.config.repulsion_pairing = "deeper"
-    elif mode == "vertex":
-        m.config.repulsion_pairing = "vertex"
+    elif mode in ("vertex", "nearest"):
+        m.config.repulsion_pairing = mode
     elif mode.endswith("_body_guard"):
         m.config.repulsion_pairing = mode.removesuffix("_body_guard")
         m._cascade_repulsion = types.MethodType(_body_guarded(m._cascade_repulsion), m)
@@ -118,12 +120,15 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     p.add_argument("--edge-length", type=float, default=0.035)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--body-pairing", choices=BODY_PAIRINGS,
+                   help="read the body stage with this pairing in every mode (default: the checkpoint's)")
     p.add_argument("--json-dir", help="write <dir>/<mode>.json (smln eval --json form)")
     a = p.parse_args(argv)
     set_threads(a.threads)
     model, card = load_checkpoint(a.checkpoint)
     if not model.config.use_repulsion_layer:
         raise SystemExit(f"{a.checkpoint} has no repulsion layer")
+    apply_body_pairing(model, a.body_pairing)
     outfits, motions = resolve_names(a.outfits, "outfits"), resolve_names(a.motions, "motions")
     out: dict[str, dict[str, float]] = {}
     for mode in a.modes:

@@ -275,8 +275,10 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
                         "(default %(default)s)")
     p.add_argument("--repulsion-pairing", choices=REPULSION_PAIRINGS,
                    help="how the repulsion layer reads an outer vertex against the layer beneath, overriding the "
-                        "checkpoint's: vertex (paper Eq. 14, the nearest inner vertex) or deeper (also the closest "
-                        "inner triangle point; SMLNConfig.repulsion_pairing); models without the layer are unchanged")
+                        "checkpoint's: vertex (paper Eq. 14, the nearest inner vertex at t), deeper (also the closest "
+                        "inner triangle point) or nearest (the inner vertex nearest to the prediction at t+1, the "
+                        "L-Coll metric's pairing; SMLNConfig.repulsion_pairing); models without the layer are "
+                        "unchanged")
     p.add_argument("--body-pairing", choices=BODY_PAIRINGS,
                    help="which body vertex the repulsion layer's body stage reads a garment vertex against, "
                         "overriding the checkpoint's: edge (its world edge's, nearest at t, as trained) or nearest "

@@ -175,6 +175,13 @@ def test_catalog_body_stage_readings(tmp_path):
     assert cat.model("baseline", "body-nearest") is cat.model("baseline")
     with pytest.raises(ValueError, match="reading"):
         cat.model("full", "body-sideways")
+    # the layer stage's nearest pairing, alone and with the body stage's
+    layer = cat.model("full", "layer-nearest")
+    assert layer.config.repulsion_pairing == "nearest" and layer.config.body_pairing == "edge"
+    both = cat.model("full", "all-nearest")
+    assert (both.config.repulsion_pairing, both.config.body_pairing) == ("nearest", "nearest")
+    assert base.config.repulsion_pairing == "vertex"  # the loaded model keeps its own reading
+    assert cat.model("baseline", "all-nearest") is cat.model("baseline")
 
 
 def test_uploads_are_validated(tmp_path):

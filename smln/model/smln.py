@@ -28,7 +28,7 @@ from smln.model.normalizer import Normalizer
 from smln.model.processor import Processor
 from smln.model.repulsion import RepulsionLayer
 
-REPULSION_PAIRINGS = ("vertex", "deeper")
+REPULSION_PAIRINGS = ("vertex", "deeper", "nearest")
 """Values of :attr:`SMLNConfig.repulsion_pairing`."""
 
 BODY_PAIRINGS = ("edge", "nearest")
@@ -104,6 +104,10 @@ class SMLNConfig:
             inner vertex's tangent plane but behind the inner surface between vertices (a fold, a concave patch;
             the point-to-triangle L-Coll). The same weights serve both (the MLP's inputs have the same meaning).
             Costs a closest-point query per layer pair and step (~1.2x per frame at 2 cm, bench/rollout_speed.py).
+            ``"nearest"`` (our extension, session 41): the same outer vertices (those with a virtual edge at step
+            t), each against the inner vertex nearest to its prediction at t+1 (the layer beneath taken where its
+            own push left it) and that vertex's normal there: the pairing of the L-Coll metric, which reads the
+            final positions (:func:`nearest_layer_pairs`; a KD-tree over the inner layer per stage and step).
             Cards written before this field existed load with ``"vertex"``.
         body_pairing: which body vertex the body stage reads a garment vertex against. ``"edge"`` (as every stage
             was trained): its body world edge's, the body vertex nearest to it at step t. ``"nearest"`` (our
@@ -209,6 +213,35 @@ def nearest_body_pairs(graph: GraphInputs, x_hat: torch.Tensor, radius: float) -
     idx, dist = nearest_vertices(xh.index_select(0, rows), tree=tree)
     keep = dist.to(x_hat.device) < radius
     return rows[keep], idx.to(x_hat.device)[keep]
+
+
+def nearest_layer_pairs(topology: GraphTopology, x_k: torch.Tensor, outer: torch.Tensor, inner_layer: int,
+                        ) -> torch.Tensor:
+    """Each outer vertex with the vertex of the layer beneath nearest to it at the predicted positions.
+
+    The pairing of ``SMLNConfig.repulsion_pairing = "nearest"`` (and of the L-Coll metric, which reads each outer
+    vertex against its nearest inner vertex at the frame's final positions). Rows of ``x_k`` that are not finite
+    (an outer vertex, or an inner vertex, with a NaN prediction) are left out.
+
+    Args:
+        topology: the outfit's topology (``layer_slices``).
+        x_k: (V, 3) predicted positions, m: x̂ plus the pushes of the stages so far (the inner layer is final).
+        outer: (P,) int64 the stage's outer vertices (global indices; unique).
+        inner_layer: the layer beneath them.
+
+    Returns:
+        (2, P') int64 pairs (outer i, its nearest inner vertex j at ``x_k``), P' <= P, on ``x_k``'s device.
+    """
+    dev = x_k.device
+    sl = topology.layer_slices[inner_layer]
+    xk = x_k.detach()
+    inner = torch.arange(sl.start, sl.stop, device=dev)
+    inner = inner[torch.isfinite(xk.index_select(0, inner)).all(dim=-1)]
+    outer = outer[torch.isfinite(xk.index_select(0, outer)).all(dim=-1)]
+    if inner.numel() == 0 or outer.numel() == 0:
+        return torch.zeros((2, 0), dtype=torch.long, device=dev)
+    idx, _ = nearest_vertices(xk.index_select(0, outer), xk.index_select(0, inner))
+    return torch.stack([outer, inner[idx.to(dev)]])
 
 
 def surface_partners(topology: GraphTopology, x_cur: torch.Tensor, x_k: torch.Tensor, n_k: torch.Tensor,
@@ -389,6 +422,8 @@ class SMLN(nn.Module):
             x_k = x_hat + a
             n_k = vertex_normals(x_k, topology.faces)
             stage = pairs[:, outer_layer == k]
+            if self.config.repulsion_pairing == "nearest" and stage.shape[1] > 0:
+                stage = nearest_layer_pairs(topology, x_k, stage[0], k - 1)
             if self.config.repulsion_pairing == "deeper" and stage.shape[1] > 0:
                 a_k, rep = self._push_deeper(topology, graph.x_cur, x_k, n_k, stage, k - 1)
             else:
