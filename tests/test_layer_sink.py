@@ -6,6 +6,7 @@ from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+import pytest
 
 from tests.script_loader import load_script
 
@@ -37,3 +38,19 @@ def test_band_sink_is_the_mean_drop_below_skinning_in_mm():
     assert np.allclose(bench.band_sink(moved, skinned, band), [0.0, 10.0, 20.0, -5.0])
     moved[:, 0, 2] -= 1.0  # a vertex outside the band does not count
     assert np.allclose(bench.band_sink(moved, skinned, band), [0.0, 10.0, 20.0, -5.0])
+
+
+def test_paired_summary_means_and_paired_differences():
+    bench = _bench()
+    sinks = {"a": [10.0, 20.0, 30.0], "b": [12.0, 19.0, 36.0]}  # b - a: +2, -1, +6
+    out = bench.paired_summary(sinks)
+    assert out["a"] == {"mean_mm": 20.0, "scenes": 3}
+    d = np.array([2.0, -1.0, 6.0])
+    assert np.isclose(out["b"]["mean_mm"], 67.0 / 3)
+    assert np.isclose(out["b"]["diff_mm"], d.mean())
+    assert np.isclose(out["b"]["diff_se_mm"], d.std(ddof=1) / np.sqrt(3))
+    assert (out["b"]["less"], out["b"]["more"]) == (1, 2)
+    one = bench.paired_summary({"a": [5.0], "b": [4.0]})
+    assert one["b"]["diff_mm"] == -1.0 and np.isnan(one["b"]["diff_se_mm"])
+    with pytest.raises(ValueError, match="scenes"):
+        bench.paired_summary({"a": [1.0, 2.0], "b": [1.0]})
