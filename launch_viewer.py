@@ -10,6 +10,7 @@ the port can drive it and upload files). Bodies ship as compact exports, so star
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from typing import Any
@@ -35,6 +36,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="garment triangle size in m (default 0.035, the training resolution; 0.02 is finer and slower)")
     p.add_argument("--allow-remote", action="store_true",
                    help="allow binding to a non-local interface (no authentication: use on trusted networks)")
+    p.add_argument("--reading", default="checkpoint",
+                   help="the repulsion layer's reading the viewer starts with (the picker's values: checkpoint, "
+                        "vertex, deeper, layer-nearest, body-edge, body-nearest, all-nearest; app.sources.READINGS); "
+                        "with the shipped full checkpoint, all-nearest is the reading that meets the issue's six "
+                        "target figures (docs/RESULTS.md, session 41)")
     p.add_argument("--extra-rollout", action="append", default=[], metavar="PATH",
                    help="a saved rollout NPZ (e.g. runs/physics/*.npz from bench/physics_reference.py) shown as one "
                         "more read-only variant on its own scene (repeatable)")
@@ -70,6 +76,14 @@ def load_extras(paths: list[str], catalog: Any) -> tuple[Any, Any]:
     return store, setting
 
 
+def with_reading(setting: Any, reading: str, catalog: Any) -> Any:
+    """The viewer's first scene read with ``--reading``: ``setting`` (or the catalog's default scene when None) with
+    that reading; None (the app's default) when the reading is the checkpoint's own and no scene was chosen."""
+    if reading == "checkpoint":
+        return setting
+    return dataclasses.replace(setting or catalog.default_setting(), reading=reading)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.host not in LOCAL_HOSTS and not args.allow_remote:
@@ -88,7 +102,11 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     from app.server import ViewerApp
-    from app.sources import VARIANT_LABELS, Catalog
+    from app.sources import READINGS, VARIANT_LABELS, Catalog
+
+    if args.reading not in READINGS:
+        print(f"launch_viewer: --reading must be one of {', '.join(READINGS)}", file=sys.stderr)
+        return 2
 
     if args.edge_length is not None and not 0.01 <= args.edge_length <= 0.1:
         print("launch_viewer: --edge-length must be between 0.01 and 0.1 m", file=sys.stderr)
@@ -109,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no checkpoint found in {args.checkpoints}/ (expected full/, no_repulsion_layer/, baseline/): "
               "showing skinning-only rollouts")
     extras, setting = load_extras(args.extra_rollout, catalog)
+    setting = with_reading(setting, args.reading, catalog)
     try:
         app = ViewerApp(host=args.host, port=args.port, catalog=catalog, device=args.device,
                         max_frames=args.max_frames, extras=extras, setting=setting)

@@ -224,6 +224,30 @@ def test_remote_binding_needs_a_flag(capsys: pytest.CaptureFixture[str]) -> None
     assert launch_viewer.parse_args([]).host == "127.0.0.1"
 
 
+def test_the_starting_reading_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--reading`` sets the first scene's repulsion-layer reading; an unknown one is refused before the server."""
+    from types import SimpleNamespace
+
+    from app.sources import Setting
+
+    sys.path.insert(0, str(ROOT))
+    try:
+        import launch_viewer
+    finally:
+        sys.path.remove(str(ROOT))
+    assert launch_viewer.main(["--reading", "sideways", "--port", str(_free_port())]) == 2
+    assert "--reading must be one of" in capsys.readouterr().err
+    assert launch_viewer.parse_args([]).reading == "checkpoint"
+    catalog = SimpleNamespace(default_setting=lambda: Setting("tshirt_jacket", "02_01_walk"))
+    assert launch_viewer.with_reading(None, "checkpoint", catalog) is None
+    chosen = Setting("leggings_skirt", "09_01_run", "male_average")
+    assert launch_viewer.with_reading(chosen, "checkpoint", catalog) is chosen
+    assert launch_viewer.with_reading(None, "all-nearest", catalog) == Setting("tshirt_jacket", "02_01_walk",
+                                                                               reading="all-nearest")
+    assert launch_viewer.with_reading(chosen, "layer-nearest", catalog) == Setting(
+        "leggings_skirt", "09_01_run", "male_average", reading="layer-nearest")
+
+
 @pytest.mark.slow
 def test_remote_binding_with_flag_warns(tmp_path: Path) -> None:
     """With ``--allow-remote`` the viewer starts and prints a warning about the missing authentication."""
