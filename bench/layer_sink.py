@@ -59,11 +59,9 @@ def band_sink(positions: np.ndarray, skinned: np.ndarray, band: np.ndarray) -> n
     return 1e3 * (skinned[:, band, 2] - positions[:, band, 2]).mean(axis=1)
 
 
-def measure(checkpoint: str, scene, frames: int, band: np.ndarray, model=None) -> dict:
-    """Roll the checkpoint out (the shipped guards, fallback to skinning) and measure the band's sink and the slip
-    (``model``: the checkpoint already loaded, else it is loaded here)."""
-    if model is None:
-        model, _ = load_checkpoint(checkpoint)
+def measure(checkpoint: str, model, scene, frames: int, band: np.ndarray) -> dict:
+    """Roll the loaded checkpoint (``model``, read from the path ``checkpoint``) out (the shipped guards, fallback to
+    skinning) and measure the band's sink and the slip."""
     out = list(rollout(model, scene.cloth, scene.body, scene.body.faces, num_frames=frames, fallback=True))
     x = np.stack([f.garment_positions for f in out])
     sink = band_sink(x, scene.skinned[:frames].numpy(), band)
@@ -102,9 +100,9 @@ def paired_summary(sinks: dict[str, list[float]]) -> dict[str, dict[str, float]]
 
 
 def measure_scene(outfit: str, motion: str, checkpoints: list[str], frames: int, band_m: float,
-                  report: list[int], models: dict | None = None) -> dict:
+                  report: list[int], models: dict) -> dict:
     """Every checkpoint on one scene: prints its table and returns the scene's result (JSON form). ``models``: the
-    checkpoints already loaded, by path (each is loaded once for all scenes)."""
+    checkpoints loaded once for all scenes, by path."""
     scene = make_scene(outfit, "female_average", motion, edge_length=0.035, max_frames=frames)
     frames = min(frames, scene.body.num_frames)
     band = top_band(scene.skinned[0].numpy(), scene.cloth.layer_index.numpy(), band_m)
@@ -116,7 +114,7 @@ def measure_scene(outfit: str, motion: str, checkpoints: list[str], frames: int,
     print("label".ljust(24) + "".join(f"f{t}".rjust(8) for t in report) + "   slip mm/frame  fallbacks")
     for spec in checkpoints:
         label, _, path = spec.rpartition("=")
-        run = measure(path, scene, frames, band, model=(models or {}).get(path))
+        run = measure(path, models[path], scene, frames, band)
         result["runs"][label or path] = run
         print((label or path)[:23].ljust(24) + "".join(f"{run['sink_mm'][t]:8.0f}" for t in report)
               + f"   {run['layer_slip_mm']:13.2f}  {run['fallback_frames']:9d}", flush=True)
