@@ -254,7 +254,7 @@ def rollout(
             p, a, ex = model.step(
                 topology, x_prev, x_cur, body_d[t - 1], body_d[t], skinned[t], body_tree=body_tree(t - 1),
                 body_nearest=nearest.get(t - 1), body_normals_next=normals,
-                body_tree_next=body_tree(t) if getattr(model.config, "body_pairing", "edge") == "nearest" else None,
+                body_tree_next=body_tree(t) if getattr(model.config, "body_pairing", "edge") != "edge" else None,
             )
             x_next = ex["x_next"]
             ms = 1e3 * (time.perf_counter() - t0)

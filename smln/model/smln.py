@@ -31,7 +31,7 @@ from smln.model.repulsion import RepulsionLayer
 REPULSION_PAIRINGS = ("vertex", "deeper", "nearest")
 """Values of :attr:`SMLNConfig.repulsion_pairing`."""
 
-BODY_PAIRINGS = ("edge", "nearest")
+BODY_PAIRINGS = ("edge", "nearest", "edge_inside")
 """Values of :attr:`SMLNConfig.body_pairing`."""
 
 WEIGHTLESS_FIELDS = ("repulsion_pairing", "body_pairing")
@@ -116,7 +116,12 @@ class SMLNConfig:
             collision loss. On the shipped model about 60 % of the garment vertices the H-Coll metric finds inside
             the body at t+1 are read *outside* by their world edge's vertex (fast limbs: the nearest body vertex
             changed within the frame), so the stage does not push them. The same weights serve both. Costs a
-            KD-tree over the body at t+1 per step. Cards written before this field existed load with ``"edge"``.
+            KD-tree over the body at t+1 per step. ``"edge_inside"`` (our extension, session 42): the edge pairs'
+            push as trained, then a second pass of the same MLP for the garment vertices that push leaves *inside*
+            the body vertex nearest to them (signed distance < 0 along its normal at t+1), read against that vertex
+            (:func:`inside_body_pairs`): the vertices the H-Coll metric counts, and no others, get the nearest
+            reading, so the push the network was trained with stays where the edge reading gave it.
+            Cards written before this field existed load with ``"edge"``.
         output_scale: ONE isotropic scale of the decoder output, m/frame^2 (g·Δt² ≈ 1.1 cm/frame²); per-axis
             output statistics from near-rigid motion have ~0 vertical variance and would freeze Z.
         normalizer_accumulations: training forward calls that update the input statistics, then frozen.
@@ -213,6 +218,27 @@ def nearest_body_pairs(graph: GraphInputs, x_hat: torch.Tensor, radius: float) -
     idx, dist = nearest_vertices(xh.index_select(0, rows), tree=tree)
     keep = dist.to(x_hat.device) < radius
     return rows[keep], idx.to(x_hat.device)[keep]
+
+
+def inside_body_pairs(graph: GraphInputs, x: torch.Tensor, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The garment vertices inside the body at t+1: each with its nearest body vertex (within ``radius``) when it
+    lies behind that vertex's tangent plane (the H-Coll metric's test).
+
+    The second pass of ``SMLNConfig.body_pairing = "edge_inside"``.
+
+    Args:
+        graph: the step's inputs (``body_next`` and ``body_normals_next`` set, as for :func:`nearest_body_pairs`).
+        x: (V, 3) garment positions at t+1 so far (x̂ plus the edge pairs' push), m.
+        radius: the largest distance of a pair, m.
+
+    Returns:
+        q (P,) int64 garment vertices and r (P,) int64 their nearest body vertices, P <= V.
+    """
+    q, r = nearest_body_pairs(graph, x, radius)
+    depth = ((x.detach().index_select(0, q) - graph.body_next.index_select(0, r))
+             * graph.body_normals_next.index_select(0, r)).sum(-1)
+    inside = depth < 0.0
+    return q[inside], r[inside]
 
 
 def nearest_layer_pairs(topology: GraphTopology, x_k: torch.Tensor, outer: torch.Tensor, inner_layer: int,
@@ -373,18 +399,17 @@ class SMLN(nn.Module):
         ``d1 = x_q - b_r(t+1)`` and the unit normal ``n_r(t+1)`` (columns 0-2, 4-6 and 9-11,
         :meth:`GraphTopology.build`), so b_r(t) = x_q - d0 and b_r(t+1) = x_q - d1. With ``"nearest"`` they are each
         garment vertex within ``body_radius`` of the body at t+1 and the body vertex nearest to its x̂
-        (:func:`nearest_body_pairs`), read from the body positions and normals the graph inputs carry. The body is
-        kinematic and is not pushed.
+        (:func:`nearest_body_pairs`), read from the body positions and normals the graph inputs carry. With
+        ``"edge_inside"`` the edge pairs push first, then the vertices still inside the body are read against their
+        nearest body vertex (:func:`inside_body_pairs`) in a second pass of the same MLP. The body is kinematic and
+        is not pushed.
 
         Returns:
             (V, 3) m/frame^2, zero on pinned vertices; stores the stage's extras in ``extras["body_repulsion"]``.
         """
         if self.config.body_pairing == "nearest":
             q, r = nearest_body_pairs(graph, x_hat, self.config.body_radius)
-            xq = graph.x_cur.index_select(0, q)
-            a, ex = self.body_repulsion.push(q, xq, x_hat.index_select(0, q), graph.body_cur.index_select(0, r),
-                                             graph.body_next.index_select(0, r),
-                                             graph.body_normals_next.index_select(0, r), x_hat.shape[0])
+            a, ex = self._push_against_body(graph, x_hat, q, r)
         else:
             q, f = graph.body_receivers, graph.body_features
             xq = graph.x_cur.index_select(0, q)
@@ -392,8 +417,23 @@ class SMLN(nn.Module):
                                              f[:, 9:12], x_hat.shape[0])
         a = a * free
         ex["active_vertices"] = q[ex.pop("active")]
+        if self.config.body_pairing == "edge_inside":
+            q2, r2 = inside_body_pairs(graph, x_hat + a, self.config.body_radius)
+            a2, ex2 = self._push_against_body(graph, x_hat + a, q2, r2)
+            a = a + a2 * free
+            ex["active_vertices"] = torch.cat([ex["active_vertices"], q2[ex2["active"]]])
+            ex["magnitude"] = torch.cat([ex["magnitude"], ex2["magnitude"]])
         extras["body_repulsion"] = {"a": a, **ex}
         return a
+
+    def _push_against_body(self, graph: GraphInputs, x: torch.Tensor, q: torch.Tensor, r: torch.Tensor,
+                           ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The body stage's push of garment vertices ``q`` (P,) at positions ``x`` (V, 3, m) read against body
+        vertices ``r`` (P,) from the body positions and normals the graph inputs carry (:meth:`RepulsionLayer.push`).
+        """
+        return self.body_repulsion.push(q, graph.x_cur.index_select(0, q), x.index_select(0, q),
+                                        graph.body_cur.index_select(0, r), graph.body_next.index_select(0, r),
+                                        graph.body_normals_next.index_select(0, r), x.shape[0])
 
     def _cascade_repulsion(
         self, topology: GraphTopology, graph: Any, x_hat: torch.Tensor, free: torch.Tensor,
