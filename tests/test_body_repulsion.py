@@ -188,6 +188,8 @@ def test_body_pairing_config_and_override():
         SMLNConfig(body_repulsion=True, body_pairing="farthest")
     cfg = SMLNConfig(body_repulsion=True, body_pairing="nearest")
     assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
+    cfg = SMLNConfig(body_repulsion=True, body_pairing="edge_inside")
+    assert SMLNConfig.from_dict(cfg.to_dict()) == cfg
     assert "body_pairing" in WEIGHTLESS_FIELDS
     model = SMLN(small_config(body_repulsion=True))
     assert model.config.body_pairing == "edge"  # the default: as every stage was trained
@@ -195,3 +197,68 @@ def test_body_pairing_config_and_override():
     assert not apply_body_pairing(model, "nearest") and not apply_body_pairing(model, None)
     without = SMLN(small_config())  # no body stage: nothing to change
     assert not apply_body_pairing(without, "nearest") and without.config.body_pairing == "edge"
+
+
+def test_edge_inside_pairing_adds_the_nearest_reading_only_for_vertices_left_inside(tight_scene):
+    """body_pairing "edge_inside": the edge pairs push exactly as with "edge"; then every free garment vertex that
+    push leaves behind the tangent plane of its nearest body vertex at t+1 (found here by scipy's KD-tree,
+    independently) is pushed by the same MLP against that vertex (projection init: onto its threshold plane), and
+    no other vertex moves."""
+    from scipy.spatial import cKDTree
+
+    cloth, body, xs, normals = tight_scene
+    torch.manual_seed(0)
+    edge = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
+    edge.body_repulsion.init_as_projection()
+    both = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004, body_pairing="edge_inside")).eval()
+    both.load_state_dict(edge.state_dict())
+    topo = both.make_topology(cloth)
+    # at t the garment sits 4 cm off to +x (its +x side deep in the body, beyond every body edge's reach) and moves
+    # back 4.6 cm in the step: x̂ puts the +x side 6 mm inside, where no body edge of step t reads it
+    far, back = torch.tensor([0.04, 0.0, 0.0]), torch.tensor([0.046, 0.0, 0.0])
+    x_cur, x_prev = xs[1] + far, xs[1] + far + back
+    with torch.no_grad():
+        pe, _, exe = edge.step(topo, x_prev, x_cur, body[1], body[2], xs[2], body_normals_next=normals[2])
+        pb, _, exb = both.step(topo, x_prev, x_cur, body[1], body[2], xs[2], body_normals_next=normals[2])
+    assert torch.equal(pe, pb)
+    x_hat, a_edge, a_both = exb["x_hat"], exe["body_repulsion"]["a"], exb["body_repulsion"]["a"]
+    x1 = x_hat + a_edge  # where the edge pairs' push leaves each vertex
+    dist, idx = cKDTree(body[2].numpy()).query(x1.numpy())
+    idx = torch.as_tensor(idx)
+    e1 = ((x1 - body[2][idx]) * normals[2][idx]).sum(-1)
+    inside = torch.as_tensor(dist < 0.03) & (e1 < 0) & (e1 > -BODY_REPULSION_MAX_DEPTH) & ~cloth.pinned
+    assert inside.sum() > 0  # the edge reading leaves vertices inside: the case the second pass is for
+    assert torch.equal(a_both[~inside], a_edge[~inside])  # nothing else changes
+    after = ((x_hat + a_both - body[2][idx]) * normals[2][idx]).sum(-1)
+    assert (after[inside] - 0.004).abs().max() < 2e-5  # each one onto its nearest vertex's threshold plane
+    pushed = exb["body_repulsion"]["active_vertices"]
+    assert set(torch.nonzero(inside).flatten().tolist()) <= set(pushed.tolist())
+    assert pushed.numel() == exb["body_repulsion"]["magnitude"].numel()
+    # with nothing inside after the edge push, the reading is the edge reading exactly
+    with torch.no_grad():
+        _, _, exe0 = edge.step(topo, xs[1], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+        _, _, exb0 = both.step(topo, xs[1], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    x0 = exe0["x_hat"] + exe0["body_repulsion"]["a"]
+    d0, i0 = cKDTree(body[2].numpy()).query(x0.numpy())
+    e0 = ((x0 - body[2][torch.as_tensor(i0)]) * normals[2][torch.as_tensor(i0)]).sum(-1)
+    assert not (torch.as_tensor(d0 < 0.03) & (e0 < 0) & ~cloth.pinned).any()
+    assert torch.equal(exb0["body_repulsion"]["a"], exe0["body_repulsion"]["a"])
+
+
+def test_inside_body_pairs_keeps_only_vertices_behind_the_nearest_tangent_plane(tight_scene):
+    from scipy.spatial import cKDTree
+
+    from smln.model.smln import inside_body_pairs
+
+    cloth, body, xs, normals = tight_scene
+    model = SMLN(small_config(body_repulsion=True, body_pairing="edge_inside")).eval()
+    topo = model.make_topology(cloth)
+    with torch.no_grad():
+        _, _, ex = model.step(topo, xs[1], xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
+    x = xs[2] - torch.tensor([0.01, 0.0, 0.0])  # the +x side moved 1 cm into the body
+    q, r = inside_body_pairs(ex["graph"], x, 0.03)
+    dist, idx = cKDTree(body[2].numpy()).query(x.numpy())
+    e = ((x - body[2][torch.as_tensor(idx)]) * normals[2][torch.as_tensor(idx)]).sum(-1)
+    expected = torch.nonzero(torch.as_tensor(dist < 0.03) & (e < 0)).flatten()
+    assert expected.numel() > 0 and torch.equal(q, expected)
+    assert torch.equal(r, torch.as_tensor(idx)[expected])
