@@ -38,7 +38,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="allow binding to a non-local interface (no authentication: use on trusted networks)")
     p.add_argument("--reading", default="checkpoint",
                    help="the repulsion layer's reading the viewer starts with (the picker's values: checkpoint, "
-                        "vertex, deeper, layer-nearest, body-edge, body-nearest, all-nearest; app.sources.READINGS); "
+                        "vertex, deeper, layer-nearest, body-edge, body-nearest, all-nearest, body-inside, "
+                        "nearest-inside, as-trained; app.sources.READINGS); "
                         "with the shipped full checkpoint, all-nearest is the reading that meets the issue's six "
                         "target figures (docs/RESULTS.md, session 41)")
     p.add_argument("--extra-rollout", action="append", default=[], metavar="PATH",

@@ -96,7 +96,9 @@ def build_controls(gui: viser.GuiApi, catalog: Catalog, setting: Setting, varian
                  "(SMLNConfig.repulsion_pairing); layer-nearest: against the inner vertex nearest to the prediction "
                  "at t+1 (the L-Coll metric's pairing); body-edge / body-nearest: the body stage against the body "
                  "vertex nearest at t / nearest to the prediction at t+1 (SMLNConfig.body_pairing); all-nearest: "
-                 "both stages nearest at t+1; same weights")
+                 "both stages nearest at t+1; body-inside: body edge pairs, then the nearest reading for vertices "
+                 "still inside the body; nearest-inside: layer-nearest and body-inside; as-trained: vertex and "
+                 "body-edge; same weights")
         upload_bvh = gui.add_upload_button("Upload BVH clip", icon=None, mime_type=".bvh",
                                            hint=f"CMU-style BVH, at most {MAX_BVH_BYTES // 2**20} MB")
         upload_obj = gui.add_upload_button("Upload OBJ garment", icon=None, mime_type=".obj",

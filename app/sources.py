@@ -36,14 +36,19 @@ READING_CHANGES: dict[str, tuple[tuple[str, str], ...]] = {
     "body-edge": (("body_pairing", "edge"),),
     "body-nearest": (("body_pairing", "nearest"),),
     "all-nearest": (("repulsion_pairing", "nearest"), ("body_pairing", "nearest")),
+    "body-inside": (("body_pairing", "edge_inside"),),
+    "nearest-inside": (("repulsion_pairing", "nearest"), ("body_pairing", "edge_inside")),
+    "as-trained": (("repulsion_pairing", "vertex"), ("body_pairing", "edge")),
 }
 """What each reading but "checkpoint" changes: :class:`~smln.model.SMLNConfig` fields and their values."""
 
 READINGS: tuple[str, ...] = ("checkpoint", *READING_CHANGES)
 """Repulsion-layer readings of :class:`Setting`: the checkpoint's own, ``SMLNConfig.repulsion_pairing`` set to
-"vertex", "deeper" or "nearest" (layer-nearest), the body stage's ``SMLNConfig.body_pairing`` set to "edge" or
-"nearest", or both stages' pairing set to "nearest" (all-nearest), for the session (same weights; a model without the
-layer, or without its body stage, is unchanged by what it lacks)."""
+"vertex", "deeper" or "nearest" (layer-nearest), the body stage's ``SMLNConfig.body_pairing`` set to "edge",
+"nearest" or "edge_inside" (body-inside), both stages' pairing set to "nearest" (all-nearest), the layer's "nearest"
+with the body's "edge_inside" (nearest-inside), or the pairings every checkpoint was trained with, "vertex" and
+"edge" (as-trained), for the session (same weights; a model without the layer, or without its body stage, is
+unchanged by what it lacks)."""
 
 VARIANTS: tuple[str, ...] = ("full", "no_repulsion_layer", "baseline", "skinning")
 """Variant keys in display order: the three checkpoints of the paper's ablation, then plain skinning."""
@@ -70,7 +75,9 @@ class Setting:
     of :data:`READINGS`: "checkpoint" (as the card says), "vertex" (paper Eq. 14) or "deeper" (also the closest
     inner triangle point, ``SMLNConfig.repulsion_pairing``), "layer-nearest" (against the inner vertex nearest at
     t+1), "body-edge" or "body-nearest" (the body stage against the body vertex nearest at t or nearest to the
-    prediction at t+1, ``SMLNConfig.body_pairing``) or "all-nearest" (both stages nearest at t+1).
+    prediction at t+1, ``SMLNConfig.body_pairing``), "all-nearest" (both stages nearest at t+1), "body-inside" (the
+    body stage's edge pairs, then the nearest reading for vertices still inside), "nearest-inside" (layer-nearest and
+    body-inside) or "as-trained" (vertex and body-edge).
     """
 
     outfit: str

@@ -182,6 +182,11 @@ def test_catalog_body_stage_readings(tmp_path):
     assert (both.config.repulsion_pairing, both.config.body_pairing) == ("nearest", "nearest")
     assert base.config.repulsion_pairing == "vertex"  # the loaded model keeps its own reading
     assert cat.model("baseline", "all-nearest") is cat.model("baseline")
+    inside = cat.model("full", "nearest-inside")
+    assert (inside.config.repulsion_pairing, inside.config.body_pairing) == ("nearest", "edge_inside")
+    assert cat.model("full", "body-inside").config.repulsion_pairing == base.config.repulsion_pairing
+    trained = cat.model("full", "as-trained")
+    assert (trained.config.repulsion_pairing, trained.config.body_pairing) == ("vertex", "edge")
 
 
 def test_uploads_are_validated(tmp_path):
