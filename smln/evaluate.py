@@ -281,9 +281,10 @@ def add_model_rollout_options(p: argparse.ArgumentParser) -> None:
                         "unchanged")
     p.add_argument("--body-pairing", choices=BODY_PAIRINGS,
                    help="which body vertex the repulsion layer's body stage reads a garment vertex against, "
-                        "overriding the checkpoint's: edge (its world edge's, nearest at t, as trained) or nearest "
-                        "(nearest to the prediction at t+1, the H-Coll metric's pairing; SMLNConfig.body_pairing); "
-                        "models without the body stage are unchanged")
+                        "overriding the checkpoint's: edge (its world edge's, nearest at t, as trained), nearest "
+                        "(nearest to the prediction at t+1, the H-Coll metric's pairing) or edge_inside (the edge "
+                        "pairs, then the nearest reading for the vertices still inside the body; "
+                        "SMLNConfig.body_pairing); models without the body stage are unchanged")
     p.add_argument("--skin-guard", default="always", choices=SKIN_GUARDS,
                    help="always: --max-skin-distance alone means divergence; symptomatic: only with a symptom of a "
                         "tangle (mean strain > 10 %%, H-Coll > 5 %%) or beyond twice that distance "
