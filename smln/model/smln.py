@@ -355,7 +355,8 @@ class SMLN(nn.Module):
                 targets, ``repulsion`` (the layer's extras, if on), ``body_repulsion`` (the body stage's: ``a``
                 (V, 3), ``active_vertices`` (P_a,) the garment vertices pushed, ``magnitude`` (P_a,) m/frame^2,
                 ``signed_distance`` (P,) of every pair's garment vertex at x̂, m: one per body edge, or per
-                nearest pair)
+                nearest pair; with ``"edge_inside"`` the edge pairs', and ``active_vertices`` / ``magnitude`` of
+                both passes, a vertex pushed in both listed twice)
         """
         h = self.node_encoder(self.node_norm(graph.node_features))
         me, ve = graph.mesh_edges, graph.virtual_edges
