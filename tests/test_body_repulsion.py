@@ -18,6 +18,17 @@ def small_config(**kw):
     return SMLNConfig(**base)
 
 
+def projection_models(cloth, pairing):
+    """Two models with the same weights, body stage initialised as the projection (4 mm threshold): one reading
+    "edge", one reading ``pairing``; and the outfit's topology."""
+    torch.manual_seed(0)
+    edge = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
+    edge.body_repulsion.init_as_projection()
+    other = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004, body_pairing=pairing)).eval()
+    other.load_state_dict(edge.state_dict())
+    return edge, other, other.make_topology(cloth)
+
+
 def test_projection_init_pushes_exactly_to_the_threshold():
     """softplus(MLP) = 1: a garment vertex at signed distance e < threshold moves by (threshold - e) along n."""
     layer = RepulsionLayer(threshold=0.003, max_depth=0.02)
@@ -134,12 +145,7 @@ def test_nearest_body_pairing_reads_the_body_vertex_nearest_to_the_prediction(ti
     from scipy.spatial import cKDTree
 
     cloth, body, xs, normals = tight_scene
-    torch.manual_seed(0)
-    edge = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
-    edge.body_repulsion.init_as_projection()
-    nearest = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004, body_pairing="nearest")).eval()
-    nearest.load_state_dict(edge.state_dict())
-    topo = nearest.make_topology(cloth)
+    edge, nearest, topo = projection_models(cloth, "nearest")
     shift = torch.tensor([0.006, 0.0, 0.0])  # every vertex moves 6 mm along +x: the -x side enters the body
     with torch.no_grad():
         pe, _, exe = edge.step(topo, xs[1] - shift, xs[1], body[1], body[2], xs[2], body_normals_next=normals[2])
@@ -207,12 +213,7 @@ def test_edge_inside_pairing_adds_the_nearest_reading_only_for_vertices_left_ins
     from scipy.spatial import cKDTree
 
     cloth, body, xs, normals = tight_scene
-    torch.manual_seed(0)
-    edge = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004)).eval()
-    edge.body_repulsion.init_as_projection()
-    both = SMLN(small_config(body_repulsion=True, body_repulsion_threshold=0.004, body_pairing="edge_inside")).eval()
-    both.load_state_dict(edge.state_dict())
-    topo = both.make_topology(cloth)
+    edge, both, topo = projection_models(cloth, "edge_inside")
     # at t the garment sits 4 cm off to +x (its +x side deep in the body, beyond every body edge's reach) and moves
     # back 4.6 cm in the step: x̂ puts the +x side 6 mm inside, where no body edge of step t reads it
     far, back = torch.tensor([0.04, 0.0, 0.0]), torch.tensor([0.046, 0.0, 0.0])
