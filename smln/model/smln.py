@@ -419,8 +419,9 @@ class SMLN(nn.Module):
         a = a * free
         ex["active_vertices"] = q[ex.pop("active")]
         if self.config.body_pairing == "edge_inside":
-            q2, r2 = inside_body_pairs(graph, x_hat + a, self.config.body_radius)
-            a2, ex2 = self._push_against_body(graph, x_hat + a, q2, r2)
+            x_edge = x_hat + a  # where the edge pairs' push leaves each vertex
+            q2, r2 = inside_body_pairs(graph, x_edge, self.config.body_radius)
+            a2, ex2 = self._push_against_body(graph, x_edge, q2, r2)
             a = a + a2 * free
             ex["active_vertices"] = torch.cat([ex["active_vertices"], q2[ex2["active"]]])
             ex["magnitude"] = torch.cat([ex["magnitude"], ex2["magnitude"]])
